@@ -1,0 +1,126 @@
+"""Physics options and the constants derived from them.
+
+Defaults follow DualSPHysics (v5 XML defaults and the formulas in JSph.cpp /
+JSphCpu.cpp): h = coefh*sqrt(dim)*dp, Tait EOS with gamma 7,
+c0 = coefsound*sqrt(g*Hswl), B = c0^2*rho0/gamma, eta^2 = (0.1 h)^2,
+artificial viscosity alpha 0.01, density diffusion delta 0.1, CFL 0.2,
+Verlet with an Euler step every 40 steps, density bounds 700-1300 kg/m^3
+(DualSPHysics RhopOutMin/RhopOutMax).
+
+Kernels receive the constants as one flat float array `prm` and the switches as
+one int array `opt`; the index names below are shared by every compute backend.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, asdict
+
+import numpy as np
+
+KERNELS = ("wendland", "cubic")
+DIFFUSIONS = ("none", "molteni", "fourtakas", "fourtakas-full")
+INTEGRATORS = ("verlet", "symplectic")
+CELL_SIZES = ("2h", "h")
+
+# prm indices
+P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
+P_VISC, P_VISC_BOUND, P_NU, P_DDT_KH, P_GX, P_GY, P_GZ, P_MASS_F, P_MASS_B = range(10, 19)
+P_CUBIC_A24, P_COUNT = 19, 20
+# opt indices
+O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_COUNT = range(5)
+# opt values
+K_WENDLAND, K_CUBIC = 0, 1
+D_NONE, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL = 0, 1, 2, 3
+
+
+@dataclass
+class PhysicsConfig:
+    """Every physics option a scene may set (the `[physics]` table)."""
+
+    kernel: str = "wendland"
+    coefh: float = 1.0
+    coefsound: float = 20.0
+    gamma: float = 7.0
+    rho0: float = 1000.0
+    gravity: tuple | None = None        # None: (0, -9.81) in 2D, (0, 0, -9.81) in 3D
+    visc_alpha: float = 0.01
+    visc_bound_factor: float = 1.0
+    laminar_nu: float = 0.0             # kinematic viscosity [m^2/s]; 0 = off (Lo & Shao 2002 form)
+    diffusion: str = "fourtakas"
+    delta: float = 0.1
+    integrator: str = "verlet"
+    verlet_euler_every: int = 40
+    cfl: float = 0.2
+    hswl: float | None = None           # still-water depth for c0; None = fluid height
+    rho_min: float = 700.0
+    rho_max: float = 1300.0
+    cell_size: str = "2h"
+
+    @classmethod
+    def field_names(cls):
+        return [f.name for f in fields(cls)]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Constants:
+    """Derived constants for a scene at a given dp."""
+
+    dim: int
+    dp: float
+    h: float
+    c0: float
+    B: float
+    mass_fluid: float
+    mass_bound: float
+    gravity: np.ndarray
+    cell_size: float
+    prm: np.ndarray   # float64; cast by the backend to its precision
+    opt: np.ndarray   # int64
+
+
+def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
+    """Constants of DualSPHysics' formulation for `dim`, `dp` and still-water depth `hswl`."""
+    g = np.array(cfg.gravity if cfg.gravity is not None else ([0.0] * (dim - 1) + [-9.81]), float)
+    gmag = float(np.linalg.norm(g)) or 9.81
+    h = cfg.coefh * math.sqrt(dim) * dp                  # JSph: H = CoefH*sqrt(dim*Dp^2)
+    c0 = cfg.coefsound * math.sqrt(gmag * max(hswl, dp))  # JSph: Cs0 = CoefSound*sqrt(g*HSwl)
+    B = c0 * c0 * cfg.rho0 / cfg.gamma                   # JSph: CteB = Cs0^2*RhopZero/Gamma
+    mass = cfg.rho0 * dp ** dim                          # JSph: MassFluid = MassBound = RhopZero*Dp^dim
+    if cfg.kernel == "wendland":
+        # Wendland C2 (Wendland 1995): W = aw (1-q/2)^4 (2q+1), q = r/h in [0, 2]
+        aw = 7.0 / (4.0 * math.pi * h * h) if dim == 2 else 21.0 / (16.0 * math.pi * h ** 3)
+        bw = -5.0 * aw / h                               # dW/dr = bw * q (1-q/2)^3
+    else:
+        # cubic spline (Monaghan & Lattanzio 1985)
+        aw = 10.0 / (7.0 * math.pi * h * h) if dim == 2 else 1.0 / (math.pi * h ** 3)
+        bw = aw / h
+    prm = np.zeros(P_COUNT)
+    prm[P_H] = h
+    prm[P_H2] = h * h
+    prm[P_SUPPORT2] = 4.0 * h * h
+    prm[P_AW] = aw
+    prm[P_BW] = bw
+    prm[P_C0] = c0
+    prm[P_B] = B
+    prm[P_GAMMA] = cfg.gamma
+    prm[P_RHO0] = cfg.rho0
+    prm[P_ETA2] = (0.1 * h) ** 2                         # JSph: Eta2 = (h*0.1)^2
+    prm[P_VISC] = cfg.visc_alpha
+    prm[P_VISC_BOUND] = cfg.visc_alpha * cfg.visc_bound_factor
+    prm[P_NU] = cfg.laminar_nu
+    prm[P_DDT_KH] = cfg.delta * 2.0 * h                  # JSph: DDTkh = DDTValue*KernelSize (2h)
+    prm[P_GX:P_GX + dim] = g
+    prm[P_MASS_F] = mass
+    prm[P_MASS_B] = mass
+    prm[P_CUBIC_A24] = 0.25 * aw                         # cubic: W = a24 (2-q)^3 for 1<q<2
+    opt = np.zeros(O_COUNT, np.int64)
+    opt[O_DIM] = dim
+    opt[O_KERNEL] = KERNELS.index(cfg.kernel)
+    opt[O_DDT] = DIFFUSIONS.index(cfg.diffusion) if cfg.delta > 0 else D_NONE
+    opt[O_LAMINAR] = 1 if cfg.laminar_nu > 0 else 0
+    cell = 2.0 * h if cfg.cell_size == "2h" else h
+    return Constants(dim=dim, dp=dp, h=h, c0=c0, B=B, mass_fluid=mass, mass_bound=mass,
+                     gravity=g, cell_size=cell, prm=prm, opt=opt)

@@ -1,0 +1,34 @@
+"""Error types mapped to the exit codes of DESIGN.md §5.
+
+InputError -> 2 (bad input or usage: one line naming file, key and expected form)
+NumericalError -> 1 (blow-up or violated invariant: step, cause, particle id)
+anything else -> 3 (internal error: short message, traceback to a log file)
+"""
+
+
+class SphgraphError(Exception):
+    exit_code = 3
+
+
+class InputError(SphgraphError):
+    """Bad scene, schedule or command-line input. The message is one line."""
+
+    exit_code = 2
+
+
+class NumericalError(SphgraphError):
+    """The run failed numerically; earlier output stays intact."""
+
+    exit_code = 1
+
+    def __init__(self, message, step=None, particle_id=None, cause=None):
+        super().__init__(message)
+        self.step = step
+        self.particle_id = particle_id
+        self.cause = cause
+
+
+class DeadlockError(SphgraphError):
+    """Every simulated rank waits; the message says who waits on what."""
+
+    exit_code = 3
