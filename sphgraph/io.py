@@ -40,7 +40,6 @@ from __future__ import annotations
 import os
 import shutil
 import warnings
-from typing import Any
 
 import h5py
 import numpy as np
@@ -137,8 +136,13 @@ def _from_attr(value):
 
 
 def _encode_strings(values: np.ndarray) -> np.ndarray:
-    """str array -> fixed-length UTF-8 bytes array (via the few distinct names: fast)."""
-    values = np.asarray(values).astype(str)
+    """str array -> fixed-length UTF-8 bytes array (via the few distinct names: fast).
+
+    Arrays that are already bytes pass through unchanged."""
+    values = np.asarray(values)
+    if values.dtype.kind == "S":
+        return values
+    values = values.astype(str)
     if values.size == 0:
         return np.zeros(values.shape, "S1")
     uniq, inv = np.unique(values, return_inverse=True)
@@ -405,7 +409,8 @@ class OutputWriter:
         chunk = {}
         for name, col in zip(TIMING_FIELDS, cols):
             if name in ("task", "lane"):
-                chunk[name] = _decode_strings(col).astype(str)
+                # encoded once here, so rewriting the master costs only the write
+                chunk[name] = _encode_strings(col if col.dtype.kind == "S" else col.astype(str))
             else:
                 chunk[name] = col.astype(_TIMING_DTYPES[name])
         self._timing_pending.append(chunk)
@@ -494,7 +499,7 @@ class OutputWriter:
         """
         with _open_master(out_dir) as f:
             attrs = {k: _from_attr(v) for k, v in f.attrs.items()}
-            timing = _read_timing_group(f)
+            timing = _read_timing_group(f, decode=False)
             groups = {k: _split_group(_read_tree(f[k])) for k in f.keys() if k not in _RESERVED}
         try:
             dim, precision = int(attrs["dim"]), str(attrs["precision"])
@@ -509,8 +514,7 @@ class OutputWriter:
                 n = g["id"].shape[0]
             w._frames[index] = FrameSpec(index, time, _frame_relpath(index), FRAME_GROUP, n, fields)
             w._frame_meta[index] = (time, step)
-        w._timing_done = {k: (v.astype(str) if k in ("task", "lane") else v)
-                          for k, v in timing.items()}
+        w._timing_done = timing
         w._groups = groups
         os.makedirs(os.path.join(w.out_dir, FRAMES_DIR), exist_ok=True)
         return w
@@ -555,7 +559,7 @@ class OutputWriter:
 
 
 def _empty_timing() -> dict[str, np.ndarray]:
-    return {k: (np.zeros(0, dtype=str) if k in ("task", "lane") else
+    return {k: (np.zeros(0, dtype="S1") if k in ("task", "lane") else
                 np.zeros(0, dtype=_TIMING_DTYPES[k])) for k in TIMING_FIELDS}
 
 
@@ -755,14 +759,16 @@ def read_attrs(out_dir) -> dict:
         return {k: _from_attr(v) for k, v in f.attrs.items()}
 
 
-def _read_timing_group(f: h5py.File) -> dict[str, np.ndarray]:
+def _read_timing_group(f: h5py.File, decode: bool = True) -> dict[str, np.ndarray]:
+    """/timing columns; task and lane as str arrays, or as stored UTF-8 bytes."""
     g = f.get("timing")
-    if g is None:
-        return _empty_timing()
+    empty = _empty_timing()
     out = {}
     for name in TIMING_FIELDS:
-        arr = g[name][()] if name in g else _empty_timing()[name]
-        out[name] = _decode_strings(arr) if name in ("task", "lane") else arr
+        arr = g[name][()] if g is not None and name in g else empty[name]
+        if name in ("task", "lane"):
+            arr = _decode_strings(arr) if decode else np.asarray(arr, dtype="S")
+        out[name] = arr
     return out
 
 
