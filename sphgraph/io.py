@@ -142,6 +142,9 @@ def _encode_strings(values: np.ndarray) -> np.ndarray:
     values = np.asarray(values)
     if values.dtype.kind == "S":
         return values
+    if values.dtype.kind == "O":  # e.g. TaskKind members: store their value, not repr
+        values = np.array([str(getattr(v, "value", v)) for v in values.ravel().tolist()],
+                          dtype=str).reshape(values.shape)
     values = values.astype(str)
     if values.size == 0:
         return np.zeros(values.shape, "S1")
@@ -410,7 +413,7 @@ class OutputWriter:
         for name, col in zip(TIMING_FIELDS, cols):
             if name in ("task", "lane"):
                 # encoded once here, so rewriting the master costs only the write
-                chunk[name] = _encode_strings(col if col.dtype.kind == "S" else col.astype(str))
+                chunk[name] = _encode_strings(col)
             else:
                 chunk[name] = col.astype(_TIMING_DTYPES[name])
         self._timing_pending.append(chunk)
