@@ -1,0 +1,297 @@
+"""numba CPU kernels (prange, one particle per iteration: no atomics, no races).
+
+The pair physics lives in `sphgraph.physics`; these loops only find neighbours
+and accumulate. Every array argument is plain numpy so the kernels compile once
+per dtype and are cached on disk (`cache=True`).
+"""
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2
+from sphgraph.physics.interact import bound_pair, fluid_pair
+from sphgraph.physics.eos import tait
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def forces(dpos, dvel, drho, dpress, dkind,
+           spos, svel, srho, spress, skind,
+           start, origin, inv_size, dims, axes, reach,
+           prm, opt, ace, ar, ddt, cancel, visc):
+    """Interactions of destination particles with source particles binned in a grid.
+
+    The destination set may be the source set itself (interior forces) or not
+    (a halo as source). Outputs are overwritten (a partial buffer per source set).
+    """
+    dim = opt[O_DIM]
+    kernel = opt[O_KERNEL]
+    ddt_kind = opt[O_DDT]
+    laminar = opt[O_LAMINAR] != 0
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    nf = dims[0]
+    nm = dims[1]
+    ns = dims[2]
+    for i in prange(dpos.shape[0]):
+        # cell range around i along each permuted axis, clipped to the source grid
+        lo0 = 0
+        hi0 = 0
+        lo1 = 0
+        hi1 = 0
+        lo2 = 0
+        hi2 = 0
+        empty = False
+        for k in range(3):
+            a = axes[k]
+            lo = 0
+            hi = 0
+            if a >= 0:
+                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
+                lo = max(c - reach, 0)
+                hi = min(c + reach, dims[k] - 1)
+                if lo > hi:
+                    empty = True
+            if k == 0:
+                lo0 = lo
+                hi0 = hi
+            elif k == 1:
+                lo1 = lo
+                hi1 = hi
+            else:
+                lo2 = lo
+                hi2 = hi
+        axx = 0.0 * drho[i]
+        ayy = axx
+        azz = axx
+        arr = axx
+        dd = axx
+        cc = 0
+        vmax = axx
+        xa = dpos[i, 0]
+        ya = dpos[i, 1]
+        za = dpos[i, 2] if dim == 3 else 0.0
+        vxa = dvel[i, 0]
+        vya = dvel[i, 1]
+        vza = dvel[i, 2] if dim == 3 else 0.0
+        rho_a = drho[i]
+        p_a = dpress[i]
+        a_fluid = dkind[i] == 0
+        if not empty:
+            for c2 in range(lo2, hi2 + 1):
+                for c1 in range(lo1, hi1 + 1):
+                    row = (c2 * nm + c1) * nf
+                    for j in range(start[row + lo0], start[row + hi0 + 1]):
+                        drx = xa - spos[j, 0]
+                        dry = ya - spos[j, 1]
+                        drz = (za - spos[j, 2]) if dim == 3 else 0.0
+                        r2 = drx * drx + dry * dry + drz * drz
+                        if r2 > support2 or r2 < 1e-18:
+                            continue
+                        b_bound = skind[j] != 0
+                        dvx = vxa - svel[j, 0]
+                        dvy = vya - svel[j, 1]
+                        dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
+                        if a_fluid:
+                            fx, fy, fz, fr, fd, fc, fv = fluid_pair(
+                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j], p_a, spress[j],
+                                mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
+                            axx += fx
+                            ayy += fy
+                            azz += fz
+                            arr += fr
+                            dd += fd
+                            cc |= fc
+                        elif not b_bound:
+                            fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
+                                                mf, prm, kernel)
+                            arr += fr
+                        else:
+                            continue
+                        if fv > vmax:
+                            vmax = fv
+        ace[i, 0] = axx
+        ace[i, 1] = ayy
+        if dim == 3:
+            ace[i, 2] = azz
+        ar[i] = arr
+        ddt[i] = dd
+        cancel[i] = cc
+        visc[i] = vmax
+
+
+@njit(parallel=True, cache=True)
+def pressure_into(rho, prm, out):
+    for i in prange(rho.shape[0]):
+        out[i] = tait(rho[i], prm)
+
+
+@njit(parallel=True, cache=True)
+def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc):
+    """Sum partial buffers in their fixed order (interior, halo 1, halo 2).
+
+    Fluid acceleration gets gravity; density diffusion is added unless any
+    part cancelled it (DBC neighbour). Same result whatever order the parts
+    were computed in.
+    """
+    nparts = len(aces)
+    dim = ace.shape[1]
+    for i in prange(ace.shape[0]):
+        for d in range(dim):
+            s = 0.0 * ace[i, d]
+            for k in range(nparts):
+                s += aces[k][i, d]
+            ace[i, d] = s + gravity[d] if kind[i] == 0 else 0.0 * s
+        s = 0.0 * ar[i]
+        dd = s
+        cc = 0
+        v = s
+        for k in range(nparts):
+            s += ars[k][i]
+            dd += ddts[k][i]
+            cc |= cancels[k][i]
+            if viscs[k][i] > v:
+                v = viscs[k][i]
+        ar[i] = s + (dd if cc == 0 else 0.0 * dd)
+        visc[i] = v
+
+
+@njit(parallel=True, cache=True)
+def dt_terms(ace, vel, visc, kind, out):
+    """Per-thread partial maxima of |ace|^2 (fluid), |vel|^2 (fluid), visc: out = [a2, v2, visc]."""
+    n = ace.shape[0]
+    dim = ace.shape[1]
+    nt = out.shape[0]
+    chunk = (n + nt - 1) // nt
+    for t in prange(nt):
+        a2m = 0.0
+        v2m = 0.0
+        vm = 0.0
+        for i in range(t * chunk, min(n, (t + 1) * chunk)):
+            if visc[i] > vm:
+                vm = visc[i]
+            if kind[i] != 0:
+                continue
+            a2 = 0.0
+            v2 = 0.0
+            for d in range(dim):
+                a2 += ace[i, d] * ace[i, d]
+                v2 += vel[i, d] * vel[i, d]
+            if a2 > a2m:
+                a2m = a2
+            if v2 > v2m:
+                v2m = v2
+        out[t, 0] = a2m
+        out[t, 1] = v2m
+        out[t, 2] = vm
+
+
+@njit(parallel=True, cache=True)
+def verlet(pos, vel, rho, vel_m1, rho_m1, kind, ace, ar, dt, euler, rho0):
+    """Verlet step (DualSPHysics ComputeVerlet), Euler step when `euler`.
+
+    fluid:  r += dt v + dt^2/2 a;  v_new = v_m1 + 2dt a (Euler: v + dt a);
+            rho_new = rho_m1 + 2dt ar (Euler: rho + dt ar)
+    boundary (DBC): rho as above, clamped to >= rho0 (DualSPHysics
+            ComputeVerletVarsBound: stops boundaries attracting fluid); fixed position.
+    """
+    dim = pos.shape[1]
+    dt2 = 2.0 * dt
+    dt205 = 0.5 * dt * dt
+    for i in prange(pos.shape[0]):
+        if euler:
+            rnew = rho[i] + dt * ar[i]
+        else:
+            rnew = rho_m1[i] + dt2 * ar[i]
+        rho_m1[i] = rho[i]
+        if kind[i] == 0:
+            for d in range(dim):
+                v = vel[i, d]
+                pos[i, d] += dt * v + dt205 * ace[i, d]
+                vel[i, d] = (v if euler else vel_m1[i, d]) + (dt if euler else dt2) * ace[i, d]
+                vel_m1[i, d] = v
+            rho[i] = rnew
+        else:
+            rho[i] = rnew if rnew > rho0 else rho0
+
+
+@njit(parallel=True, cache=True)
+def symplectic_predict(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_ref):
+    """Symplectic predictor (DualSPHysics ComputeSymplecticPre), half step dt/2."""
+    dim = pos.shape[1]
+    h = 0.5 * dt
+    for i in prange(pos.shape[0]):
+        rho0_[i] = rho[i]
+        r = rho[i] + h * ar[i]
+        if kind[i] == 0:
+            for d in range(dim):
+                pos0[i, d] = pos[i, d]
+                vel0[i, d] = vel[i, d]
+                pos[i, d] += h * vel[i, d]
+                vel[i, d] += h * ace[i, d]
+            rho[i] = r
+        else:
+            rho[i] = r if r > rho_ref else rho_ref
+
+
+@njit(parallel=True, cache=True)
+def symplectic_correct(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_ref):
+    """Symplectic corrector (DualSPHysics ComputeSymplecticCorr):
+    rho = rho0 (2 + e)/(2 - e), e = -ar/rho dt;  v = v0 + dt a;  r = r0 + dt (v + v0)/2."""
+    dim = pos.shape[1]
+    for i in prange(pos.shape[0]):
+        e = -ar[i] / rho[i] * dt
+        r = rho0_[i] * (2.0 + e) / (2.0 - e)
+        if kind[i] == 0:
+            for d in range(dim):
+                v = vel0[i, d] + dt * ace[i, d]
+                pos[i, d] = pos0[i, d] + dt * 0.5 * (v + vel0[i, d])
+                vel[i, d] = v
+            rho[i] = r
+        else:
+            rho[i] = r if r > rho_ref else rho_ref
+
+
+@njit(parallel=True, cache=True)
+def check_state(pos, rho, kind, lo, hi, rho_min, rho_max, bad):
+    """First bad row per thread chunk: bad[t] = (row, cause) with cause 1 NaN,
+    2 outside the domain, 3 density out of bounds; -1 when none."""
+    n = pos.shape[0]
+    dim = pos.shape[1]
+    nt = bad.shape[0]
+    chunk = (n + nt - 1) // nt
+    for t in prange(nt):
+        bad[t, 0] = -1
+        bad[t, 1] = 0
+        for i in range(t * chunk, min(n, (t + 1) * chunk)):
+            cause = 0
+            r = rho[i]
+            if r != r:
+                cause = 1
+            for d in range(dim):
+                x = pos[i, d]
+                if x != x:
+                    cause = 1
+                elif cause == 0 and (x < lo[d] or x > hi[d]):
+                    cause = 2
+            if cause == 0 and kind[i] == 0 and (r < rho_min or r > rho_max):
+                cause = 3
+            if cause:
+                bad[t, 0] = i
+                bad[t, 1] = cause
+                break
+
+
+@njit(parallel=True, cache=True)
+def gather_rows(src, perm, dst):
+    for i in prange(perm.shape[0]):
+        dst[i] = src[perm[i]]
+
+
+@njit(parallel=True, cache=True)
+def gather_rows2(src, perm, dst):
+    m = src.shape[1]
+    for i in prange(perm.shape[0]):
+        for d in range(m):
+            dst[i, d] = src[perm[i], d]

@@ -1,0 +1,127 @@
+"""numba CPU backend: prange kernels (OpenMP-like threads), arrays in host memory."""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from sphgraph.cells import build_grid
+from sphgraph.config import P_RHO0
+from sphgraph.registry import register
+from sphgraph.state import ForceBuffers, PARTS
+
+from . import cpu_kernels as K
+from .base import ComputeBackend, dt_from_terms
+
+
+@register("compute", "numba-cpu")
+class NumbaCPU(ComputeBackend):
+    default_precision = "float64"
+
+    def device_name(self) -> str:
+        return f"cpu ({numba.get_num_threads()} threads)"
+
+    def prepare(self, state) -> None:
+        p = state.particles
+        state.press = np.empty(p.n, state.dtype)
+        state.ace = np.zeros((p.n, p.dim), state.dtype)
+        state.ar = np.zeros(p.n, state.dtype)
+        state.visc = np.zeros(p.n, state.dtype)
+        state.parts = {}
+        state.reduced_stage = -1
+
+    def host_arrays(self, state) -> dict:
+        p = state.particles
+        press = np.empty_like(p.rho)
+        K.pressure_into(p.rho, state.prm, press)
+        return {"id": p.id, "kind": p.kind, "position": p.pos, "velocity": p.vel,
+                "density": p.rho, "pressure": press}
+
+    # -- cells -------------------------------------------------------------------------
+    def _grid(self, state, pos):
+        c = state.consts
+        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        return build_grid(pos, c.cell_size, reach, state.axes)
+
+    def build_cells(self, state) -> None:
+        p = state.particles
+        grid, perm = self._grid(state, p.pos)
+        for name, arr in p.arrays().items():
+            out = np.empty_like(arr)
+            (K.gather_rows2 if arr.ndim == 2 else K.gather_rows)(arr, perm, out)
+            setattr(p, name, out)
+        state.cells = grid
+        if state.press is None or state.press.shape[0] != p.n:
+            self.prepare(state)
+        K.pressure_into(p.rho, state.prm, state.press)
+
+    def prepare_halo(self, state, halo) -> None:
+        if halo.n == 0:
+            halo.press = np.empty(0, state.dtype)
+            halo.cells = None
+            return
+        grid, perm = self._grid(state, halo.pos)
+        halo.pos, halo.vel = halo.pos[perm], halo.vel[perm]
+        halo.rho, halo.kind = halo.rho[perm], halo.kind[perm]
+        halo.press = np.empty_like(halo.rho)
+        K.pressure_into(halo.rho, state.prm, halo.press)
+        halo.cells = grid
+
+    # -- forces ------------------------------------------------------------------------
+    def forces(self, state, part: str) -> None:
+        p = state.particles
+        buf = state.parts.get(part)
+        if buf is None or buf.ar.shape[0] != p.n:
+            buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype)
+        if part == "interior":
+            src = (p.pos, p.vel, p.rho, state.press, p.kind)
+            grid = state.cells
+        else:
+            halo = state.halos.get(int(part[-1]))
+            if halo is None or halo.cells is None:  # empty halo: contributes nothing
+                for a in (buf.ace, buf.ar, buf.ddt, buf.visc):
+                    a[...] = 0
+                buf.cancel[...] = 0
+                return
+            src = (halo.pos, halo.vel, halo.rho, halo.press, halo.kind)
+            grid = halo.cells
+        K.forces(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
+                 state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
+
+    def reduce_forces(self, state, stage: int) -> None:
+        if state.reduced_stage == (state.step, stage):
+            return
+        bufs = [state.parts[k] for k in PARTS if k in state.parts and state.parts[k].ar.shape[0] == state.particles.n]
+        K.reduce_parts(tuple(b.ace for b in bufs), tuple(b.ar for b in bufs),
+                       tuple(b.ddt for b in bufs), tuple(b.cancel for b in bufs),
+                       tuple(b.visc for b in bufs), state.particles.kind,
+                       state.consts.gravity.astype(state.dtype), state.ace, state.ar, state.visc)
+        state.reduced_stage = (state.step, stage)
+
+    def dt_local(self, state) -> float:
+        out = np.zeros((numba.get_num_threads(), 3))
+        K.dt_terms(state.ace, state.particles.vel, state.visc, state.particles.kind, out)
+        a2, v2, vm = out.max(axis=0)
+        c = state.consts
+        return dt_from_terms(a2, v2, vm, c.h, c.c0, state.cfl)
+
+    def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
+        p = state.particles
+        dt = state.dtype(state.dt)
+        rho0 = state.dtype(state.consts.prm[P_RHO0])
+        if integrator == "verlet":
+            K.verlet(p.pos, p.vel, p.rho, p.vel_m1, p.rho_m1, p.kind, state.ace, state.ar, dt, euler, rho0)
+        elif stage == 1:
+            if state.stage0 is None or state.stage0[0].shape != p.pos.shape:
+                state.stage0 = (np.empty_like(p.pos), np.empty_like(p.vel), np.empty_like(p.rho))
+            K.symplectic_predict(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
+        else:
+            K.symplectic_correct(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
+
+    def check(self, state, lo, hi):
+        p = state.particles
+        bad = np.zeros((numba.get_num_threads(), 2), np.int64)
+        K.check_state(p.pos, p.rho, p.kind, lo, hi, state.rho_min, state.rho_max, bad)
+        rows = bad[bad[:, 0] >= 0]
+        if len(rows) == 0:
+            return None
+        return int(rows[0, 0]), int(rows[0, 1])

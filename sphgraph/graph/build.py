@@ -1,0 +1,120 @@
+"""Dependency graphs: per rank, derived from declared data access; and across ranks.
+
+Per-rank rule (sequential task flow over the canonical order):
+  read        after the last write of that datum (read-after-write) and after
+              every accumulation since (the reader sees the complete sum);
+  write       after the last write (WAW), every read since (WAR) and every
+              accumulation since;
+  accumulate  after the last write and every read since, but *not* after other
+              accumulations: partial buffers summed in a fixed order make any
+              order of force tasks legal and bit-identical.
+
+Multi-rank graph (DESIGN.md §3): each rank's program order (the schedule) +
+send -> receive edges + one node per collective joined by every rank. Posting a
+send never waits; a receive waits for its send; a cycle means deadlock.
+"""
+from __future__ import annotations
+
+import networkx as nx
+
+from .task import Task
+
+
+def rank_graph(tasks: list[Task]) -> nx.DiGraph:
+    """DAG of one rank's step; edges carry `reason` ("halo_1: read after write")."""
+    g = nx.DiGraph()
+    last_write: dict[str, Task] = {}
+    readers: dict[str, list[Task]] = {}
+    accums: dict[str, list[Task]] = {}
+
+    def dep(u, v, datum, why):
+        if u is None or u == v:
+            return
+        if g.has_edge(u.name, v.name):
+            g.edges[u.name, v.name]["reason"] += f"; {datum}: {why}"
+        else:
+            g.add_edge(u.name, v.name, reason=f"{datum}: {why}")
+
+    for t in tasks:
+        g.add_node(t.name, task=t)
+        for d in t.reads:
+            dep(last_write.get(d), t, d, "read after write")
+            for a in accums.get(d, ()):
+                dep(a, t, d, "read after accumulate")
+        for d in t.accumulates:
+            dep(last_write.get(d), t, d, "accumulate after write")
+            for r in readers.get(d, ()):
+                dep(r, t, d, "accumulate after read")
+        for d in t.writes:
+            dep(last_write.get(d), t, d, "write after write")
+            for r in readers.get(d, ()):
+                dep(r, t, d, "write after read")
+            for a in accums.get(d, ()):
+                dep(a, t, d, "write after accumulate")
+        for d in t.reads:
+            readers.setdefault(d, []).append(t)
+        for d in t.accumulates:
+            accums.setdefault(d, []).append(t)
+        for d in t.writes:
+            last_write[d] = t
+            readers[d] = []
+            accums[d] = []
+    return g
+
+
+def order_violations(g: nx.DiGraph, order: list[str]) -> list[str]:
+    """Dependencies that the issue order `order` breaks, as messages."""
+    pos = {name: i for i, name in enumerate(order)}
+    out = []
+    for u, v, data in g.edges(data=True):
+        if u in pos and v in pos and pos[u] > pos[v]:
+            out.append(f"{v} is placed before {u}, which it depends on ({data['reason']})")
+    return out
+
+
+def multi_rank_graph(programs: dict[int, list[Task]]) -> nx.DiGraph:
+    """Nodes (rank, task name) or ("all", name) for collectives; see module doc."""
+    g = nx.DiGraph()
+
+    def node(r, t):
+        return ("all", t.name) if t.collective else (r, t.name)
+
+    for r, prog in programs.items():
+        prev = None
+        for t in prog:
+            n = node(r, t)
+            g.add_node(n, task=t)
+            if prev is not None:
+                g.add_edge(prev, n, kind="program")
+            prev = n
+    for r, prog in programs.items():
+        for t in prog:
+            for m in t.sends:
+                peer = r + m.peer
+                for u in programs.get(peer, ()):
+                    if any(rm.peer == -m.peer and rm.tag == m.tag for rm in u.recvs):
+                        g.add_edge(node(r, t), node(peer, u), kind="message", tag=m.tag)
+    return g
+
+
+def describe_cycle(g: nx.DiGraph, cycle) -> str:
+    parts = []
+    for u, v in cycle:
+        if g.edges[u, v].get("kind") == "message":
+            parts.append(f"{_fmt(v)} waits for {_fmt(u)}")
+        else:
+            parts.append(f"{_fmt(v)} comes after {_fmt(u)}")
+    return "; ".join(parts)
+
+
+def _fmt(n):
+    r, name = n
+    return f"{name} (all ranks)" if r == "all" else f"rank {r} {name}"
+
+
+def find_deadlock(g: nx.DiGraph) -> str | None:
+    try:
+        cyc = nx.find_cycle(g)
+    except nx.NetworkXNoCycle:
+        return None
+    return describe_cycle(g, cyc)

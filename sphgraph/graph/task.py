@@ -1,0 +1,71 @@
+"""A task instance: kind (or user name), stage, declared data access and messages.
+
+Dependencies are never wired by hand: `build.rank_graph` derives them from the
+`reads`, `writes` and `accumulates` declared here (sequential task flow: the
+canonical step order defines what "after" means, like StarPU's STF model).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+from .kinds import TaskKind
+
+
+@dataclass(frozen=True)
+class Message:
+    """One point-to-point message: `peer` is a rank offset (-1 lower, +1 upper)."""
+
+    peer: int
+    tag: int
+
+
+@dataclass
+class Task:
+    kind: TaskKind | str             # str for a user-defined task
+    stage: int | None = None
+    reads: tuple = ()
+    writes: tuple = ()
+    accumulates: tuple = ()
+    lane: str = "compute"
+    fn: Callable | None = None       # fn(ctx, task)
+    sends: tuple = ()                # Message, posted without waiting
+    recvs: tuple = ()                # Message, the task waits for each
+    collective: bool = False         # joined by every rank (dt allreduce)
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return self.kind.label if isinstance(self.kind, TaskKind) else self.kind
+
+    @property
+    def name(self) -> str:
+        return self.label if self.stage is None else f"{self.label}@{self.stage}"
+
+    def __repr__(self):
+        return f"Task({self.name})"
+
+    def __hash__(self):
+        return hash(self.name)
+
+    def __eq__(self, other):
+        return isinstance(other, Task) and other.name == self.name
+
+
+@dataclass
+class UserTask:
+    """A task a user adds: a function plus its declared data access.
+
+    `fn(ctx, task)` gets the rank context (`ctx.state`, `ctx.compute`, ...).
+    Data names are those of `sphgraph.graph.tasks.DATA` or new names of the
+    user's own (kept in `ctx.state.extra`). Place it in a schedule's `order`
+    by `name`; `per_stage` places one instance per force stage.
+    """
+
+    name: str
+    fn: Callable
+    reads: tuple = ()
+    writes: tuple = ()
+    accumulates: tuple = ()
+    lane: str = "compute"
+    per_stage: bool = False

@@ -1,0 +1,158 @@
+"""The tasks of a step: declared data access, messages, and what each one runs.
+
+Data names (what tasks read, write or accumulate):
+  particles   the owned rows (positions, velocities, densities, history)
+  cells       the owned rows' cell grid and pressures (rebuilt by build_cells)
+  halo_1/2    the rows received from the lower / upper neighbour
+  forces@s    the force buffer of stage s: every force task *accumulates* into its
+              own partial (interior, halo 1, halo 2); readers see the sum in that fixed order
+  dt_local, dt  the rank's dt proposal and the global dt
+  edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
+
+The canonical order below is the step as a sequential program; dependencies
+come from it and the declarations (`build.rank_graph`), schedules reorder it.
+"""
+from __future__ import annotations
+
+from .kinds import FIRST_STAGE_ONLY, NEEDS_NEIGHBOUR, TaskKind as K
+from .task import Message, Task
+
+# tags: one per (message type, stage, direction) so MPI's non-overtaking rule is never needed
+TAG_DISPLACED = 1
+
+
+def tag_edges(stage: int, direction: int) -> int:
+    """Edges sent towards `direction` (-1 lower, +1 upper) in force stage `stage`."""
+    return 10 + 2 * stage + (0 if direction < 0 else 1)
+
+
+PRE = (K.SEND_DISPLACED, K.RECV_DISPLACED, K.BUILD_CELLS)
+STAGE = (K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, K.FORCES_HALO_1,
+         K.FORCES_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.INTEGRATE)
+POST = (K.REBALANCE,)
+
+
+def neighbours(rank: int, nranks: int) -> list[int]:
+    """Offsets of existing neighbours: -1 (lower) and/or +1 (upper)."""
+    return [d for d in (-1, 1) if 0 <= rank + d < nranks]
+
+
+def applicable(kind: K, rank: int, nranks: int) -> bool:
+    need = NEEDS_NEIGHBOUR.get(kind)
+    if need is None:
+        return True
+    if need == 0:
+        return nranks > 1
+    return (rank > 0) if need == 1 else (rank < nranks - 1)
+
+
+def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | None = None) -> Task:
+    """A built-in task instance with its access declarations and messages."""
+    s = stage
+    lane = lane or kind.default_lane
+    nb = neighbours(rank, nranks)
+    if kind is K.SEND_DISPLACED:
+        return Task(kind, None, reads=("particles",), writes=("particles", "displaced"), lane=lane,
+                    fn=run_send_displaced, sends=tuple(Message(d, TAG_DISPLACED) for d in nb))
+    if kind is K.RECV_DISPLACED:
+        return Task(kind, None, writes=("particles",), lane=lane, fn=run_recv_displaced,
+                    recvs=tuple(Message(d, TAG_DISPLACED) for d in nb))
+    if kind is K.BUILD_CELLS:
+        return Task(kind, None, writes=("particles", "cells"), lane=lane, fn=run_build_cells)
+    if kind is K.SEND_EDGES:
+        return Task(kind, s, reads=("particles", "cells"), writes=(f"edges@{s}",), lane=lane,
+                    fn=run_send_edges, sends=tuple(Message(d, tag_edges(s, d)) for d in nb))
+    if kind in (K.RECV_HALO_1, K.RECV_HALO_2):
+        side = 1 if kind is K.RECV_HALO_1 else 2
+        d = -1 if side == 1 else 1
+        # the neighbour below sent its edge "up" (+1), the one above "down" (-1)
+        return Task(kind, s, writes=(f"halo_{side}",), lane=lane, fn=run_recv_halo,
+                    recvs=(Message(d, tag_edges(s, -d)),), meta={"side": side})
+    if kind is K.FORCES_INTERIOR:
+        return Task(kind, s, reads=("particles", "cells"), accumulates=(f"forces@{s}",), lane=lane,
+                    fn=run_forces, meta={"part": "interior"})
+    if kind in (K.FORCES_HALO_1, K.FORCES_HALO_2):
+        side = 1 if kind is K.FORCES_HALO_1 else 2
+        return Task(kind, s, reads=("particles", "cells", f"halo_{side}"),
+                    accumulates=(f"forces@{s}",), lane=lane, fn=run_forces,
+                    meta={"part": f"halo_{side}"})
+    if kind is K.DT_LOCAL:
+        return Task(kind, None, reads=("particles", "forces@1"), writes=("dt_local",), lane=lane,
+                    fn=run_dt_local)
+    if kind is K.DT_ALLREDUCE:
+        return Task(kind, None, reads=("dt_local",), writes=("dt",), lane=lane,
+                    fn=run_dt_allreduce, collective=True)
+    if kind is K.INTEGRATE:
+        return Task(kind, s, reads=(f"forces@{s}", "dt"), writes=("particles",), lane=lane,
+                    fn=run_integrate)
+    if kind is K.REBALANCE:
+        return Task(kind, None, reads=("particles",), writes=("particles", "cells"), lane=lane,
+                    fn=run_rebalance, collective=True)
+    raise ValueError(kind)
+
+
+def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False) -> list[Task]:
+    """The step as a sequential program for one rank (the reference order)."""
+    out = [make_task(k, None, rank, nranks) for k in PRE if applicable(k, rank, nranks)]
+    for s in range(1, stages + 1):
+        for k in STAGE:
+            if k in FIRST_STAGE_ONLY and s != 1:
+                continue
+            if applicable(k, rank, nranks):
+                out.append(make_task(k, s if k.per_stage else None, rank, nranks))
+    if rebalance and nranks > 1:
+        out.append(make_task(K.REBALANCE, None, rank, nranks))
+    return out
+
+
+# --------------------------------------------------------------------------- task bodies
+# Each takes (ctx, task): ctx is a `sphgraph.scheduler.RankContext`.
+
+def run_send_displaced(ctx, task):
+    out = ctx.domain.take_displaced(ctx.state)     # {-1: Particles, +1: Particles}
+    for m in task.sends:
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, out[m.peer])
+
+
+def run_recv_displaced(ctx, task):
+    rows = [ctx.comm.recv(ctx.rank + m.peer, m.tag) for m in task.recvs]
+    ctx.domain.add_rows(ctx.state, rows)
+    ctx.compute.prepare(ctx.state)
+
+
+def run_build_cells(ctx, task):
+    ctx.compute.build_cells(ctx.state)
+
+
+def run_send_edges(ctx, task):
+    for m in task.sends:
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, ctx.domain.edge(ctx.state, m.peer))
+
+
+def run_recv_halo(ctx, task):
+    m = task.recvs[0]
+    halo = ctx.comm.recv(ctx.rank + m.peer, m.tag)
+    ctx.compute.prepare_halo(ctx.state, halo)
+    ctx.state.halos[task.meta["side"]] = halo
+
+
+def run_forces(ctx, task):
+    ctx.compute.forces(ctx.state, task.meta["part"])
+
+
+def run_dt_local(ctx, task):
+    ctx.compute.reduce_forces(ctx.state, 1)
+    ctx.state.dt_local = ctx.compute.dt_local(ctx.state) if ctx.fixed_dt is None else ctx.fixed_dt
+
+
+def run_dt_allreduce(ctx, task):
+    ctx.state.dt = ctx.comm.allreduce_min(ctx.state.dt_local)
+
+
+def run_integrate(ctx, task):
+    ctx.compute.reduce_forces(ctx.state, task.stage)
+    ctx.compute.integrate(ctx.state, task.stage, ctx.integrator, ctx.euler)
+
+
+def run_rebalance(ctx, task):
+    ctx.balancer.step(ctx)

@@ -1,0 +1,89 @@
+"""Pair interaction of weakly compressible SPH (DualSPHysics formulation).
+
+One call evaluates what particle b contributes to particle a (r_ab = r_a - r_b,
+v_ab = v_a - v_b, F the kernel gradient factor, grad_a W = F r_ab), following
+DualSPHysics JSphCpu::InteractionForcesFluid / InteractionForcesBound:
+
+continuity   drho_a/dt += m_b (v_ab . grad W) rho_a / rho_b
+momentum     dv_a/dt   += -m_b (P_a + P_b)/(rho_a rho_b) grad W
+artificial viscosity (Monaghan 1992), only when v_ab . r_ab < 0:
+             dv_a/dt   += m_b alpha c0 h (v_ab.r_ab)/(r^2+eta^2) / rho_bar grad W
+laminar viscosity (Lo & Shao 2002), when nu > 0:
+             dv_a/dt   += m_b 4 nu (r_ab . grad W) / ((rho_a+rho_b)(r^2+eta^2)) v_ab
+density diffusion (returned apart, `ddt`, see below):
+  Molteni & Colagrossi 2009:  delta 2h c0 (rho_a/rho_b - 1)(r_ab . grad W)/(r^2+eta^2) m_b
+  Fourtakas et al. 2019:     -delta 2h c0 ((rho_b - rho_a) - rho^H_ba)(r_ab . grad W)/(r^2+eta^2) m_b/rho_b
+     with the hydrostatic part rho^H_ba = rho0 [(1 + (P^H_b - P^H_a)/B)^(1/gamma) - 1],
+     P^H_b - P^H_a = rho0 g . (r_b - r_a), so a fluid at rest diffuses nothing.
+  With DBC a boundary neighbour cancels the diffusion of particle a ("Molteni",
+  "fourtakas"); "fourtakas-full" instead just skips boundary neighbours.
+viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt).
+
+The functions are plain @njit so the numba CPU driver and numba.cuda kernels share them.
+"""
+import math
+
+from numba import njit
+
+from ..config import (P_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
+                      P_RHO0, P_VISC, P_VISC_BOUND, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL)
+from .kernels import grad_factor
+
+
+@njit(inline="always", cache=True)
+def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, p_a, p_b, mass_b,
+               b_bound, prm, kernel, ddt_kind, laminar):
+    """Contribution of b to fluid particle a.
+
+    Returns (ax, ay, az, ar, ddt, cancel, visc) where `cancel` is 1 when b
+    switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term.
+    """
+    fac = grad_factor(r2, prm, kernel)
+    frx = fac * drx
+    fry = fac * dry
+    frz = fac * drz
+    ar = mass_b * (dvx * frx + dvy * fry + dvz * frz) * (rho_a / rho_b)
+    dot = dvx * drx + dvy * dry + dvz * drz
+    r2e = r2 + prm[P_ETA2]
+    dot_rr2 = dot / r2e
+    coef = -(p_a + p_b) / (rho_a * rho_b) * mass_b
+    if dot < 0.0:
+        alpha = prm[P_VISC_BOUND] if b_bound else prm[P_VISC]
+        coef += alpha * prm[P_C0] * prm[P_H] * dot_rr2 / (0.5 * (rho_a + rho_b)) * mass_b
+    ax = coef * frx
+    ay = coef * fry
+    az = coef * frz
+    rfr = drx * frx + dry * fry + drz * frz
+    if laminar:
+        lam = mass_b * 4.0 * prm[P_NU] * rfr / ((rho_a + rho_b) * r2e)
+        ax += lam * dvx
+        ay += lam * dvy
+        az += lam * dvz
+    ddt = 0.0 * ar
+    cancel = 0
+    if ddt_kind == D_MOLTENI:
+        if b_bound:
+            cancel = 1
+        else:
+            ddt = prm[P_DDT_KH] * prm[P_C0] * (rho_a / rho_b - 1.0) / r2e * rfr * mass_b
+    elif ddt_kind == D_FOURTAKAS or ddt_kind == D_FOURTAKAS_FULL:
+        if b_bound:
+            cancel = 1 if ddt_kind == D_FOURTAKAS else 0
+        else:
+            # hydrostatic density difference rho^H_b - rho^H_a
+            dph = -prm[P_RHO0] * (prm[P_GX] * drx + prm[P_GY] * dry + prm[P_GZ] * drz)
+            drho_h = prm[P_RHO0] * ((1.0 + dph / prm[P_B]) ** (1.0 / prm[P_GAMMA]) - 1.0)
+            ddt = -prm[P_DDT_KH] * prm[P_C0] * ((rho_b - rho_a) - drho_h) / r2e * rfr * mass_b / rho_b
+    return ax, ay, az, ar, ddt, cancel, prm[P_H] * dot_rr2
+
+
+@njit(inline="always", cache=True)
+def bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, mass_b, prm, kernel):
+    """Contribution of fluid particle b to boundary particle a (DBC): continuity only.
+
+    Returns (ar, visc).
+    """
+    fac = grad_factor(r2, prm, kernel)
+    ar = mass_b * fac * (dvx * drx + dvy * dry + dvz * drz) * (rho_a / rho_b)
+    dot = dvx * drx + dvy * dry + dvz * drz
+    return ar, prm[P_H] * dot / (r2 + prm[P_ETA2])

@@ -1,0 +1,255 @@
+"""Schedules: the overlap policy as data (TOML files in `sphgraph/schedules/`).
+
+Format (documented for users in docs/schedules.md):
+
+    format = 1
+    description = "..."
+    order = ["send_displaced", "recv_displaced", "build_cells", "send_edges",
+             "forces_interior", "recv_halo_1", "forces_halo_1", "recv_halo_2",
+             "forces_halo_2", "dt_local", "dt_allreduce", "integrate", "rebalance"]
+    halo_order = [1, 2]          # [2, 1] swaps every halo_1 and halo_2 task
+    [lanes]                      # optional: lane of a task kind (compute | comm | copy)
+    send_edges = "comm"
+    [rebalance]                  # optional
+    every = 50
+    threshold = 0.03
+    policy = "particles"
+
+`order` is the issue order of one step. The span from the first to the last
+per-stage kind is the stage block: a Symplectic step issues it twice (stage 1
+and 2; dt tasks only in stage 1). Kinds a rank's role lacks (halos at the ends,
+everything multi-rank on one rank) are skipped.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from .errors import InputError
+from .graph.build import find_deadlock, multi_rank_graph, order_violations, rank_graph
+from .graph.kinds import LANES, TaskKind
+from .graph.task import Task, UserTask
+from .graph.tasks import applicable, canonical_tasks
+
+TOP_KEYS = ("format", "name", "description", "order", "halo_order", "lanes", "rebalance")
+REBALANCE_KEYS = {"every": int, "threshold": float, "policy": str}
+POLICIES = ("particles", "time", "memory")
+
+
+class ScheduleError(InputError):
+    """One or more problems, one line each."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = problems
+        super().__init__("\n".join(problems))
+
+
+def shipped() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("sphgraph.schedules").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+@dataclass
+class Schedule:
+    name: str
+    order: list[str]
+    source: str = "<dict>"
+    description: str = ""
+    halo_order: tuple = (1, 2)
+    lanes: dict = field(default_factory=dict)
+    rebalance: dict = field(default_factory=dict)
+    text: str = ""
+
+    # ------------------------------------------------------------------ loading
+    @classmethod
+    def load(cls, spec) -> "Schedule":
+        """A shipped name, a path to a TOML file, a dict, or a Schedule."""
+        if isinstance(spec, Schedule):
+            return spec
+        if isinstance(spec, dict):
+            return cls.from_dict(spec, source="<dict>")
+        spec = str(spec)
+        path = Path(spec)
+        if not path.suffix and not path.exists():
+            if spec not in shipped():
+                raise InputError(f"--schedule: unknown schedule {spec!r}: expected a file or one of "
+                                 f"{', '.join(shipped())}")
+            text = resources.files("sphgraph.schedules").joinpath(spec + ".toml").read_text()
+            return cls.from_text(text, source=f"{spec}.toml", name=spec)
+        try:
+            text = path.read_text()
+        except OSError as e:
+            raise InputError(f"{spec}: cannot read schedule file: {e.strerror}") from None
+        return cls.from_text(text, source=spec, name=path.stem)
+
+    @classmethod
+    def from_text(cls, text: str, source: str, name: str | None = None) -> "Schedule":
+        try:
+            d = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(f"{source}: invalid TOML: {e}") from None
+        s = cls.from_dict(d, source=source, name=name)
+        s.text = text
+        return s
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>", name: str | None = None) -> "Schedule":
+        problems = []
+        if not isinstance(d, dict):
+            raise ScheduleError([f"{source}: expected a table of schedule keys"])
+        for k in d:
+            if k not in TOP_KEYS:
+                problems.append(f"{source}: {k}: unknown key: expected one of {', '.join(TOP_KEYS)}")
+        if d.get("format") != 1:
+            problems.append(f"{source}: format: expected 1, got {d.get('format')!r}")
+        order = d.get("order")
+        if not isinstance(order, list) or not order or not all(isinstance(x, str) for x in order):
+            problems.append(f"{source}: order: expected a non-empty list of task names, got {order!r}")
+            order = []
+        halo = d.get("halo_order", [1, 2])
+        if not isinstance(halo, list) or sorted(halo) != [1, 2] or not all(type(x) is int for x in halo):
+            problems.append(f"{source}: halo_order: expected [1, 2] or [2, 1], got {halo!r}")
+            halo = [1, 2]
+        lanes = d.get("lanes", {})
+        if not isinstance(lanes, dict):
+            problems.append(f"{source}: lanes: expected a table of task = lane, got {lanes!r}")
+            lanes = {}
+        for k, v in lanes.items():
+            if v not in LANES:
+                problems.append(f"{source}: lanes.{k}: unknown lane {v!r}: expected one of {', '.join(LANES)}")
+        reb = d.get("rebalance", {})
+        if not isinstance(reb, dict):
+            problems.append(f"{source}: rebalance: expected a table, got {reb!r}")
+            reb = {}
+        for k, v in reb.items():
+            typ = REBALANCE_KEYS.get(k)
+            if typ is None:
+                problems.append(f"{source}: rebalance.{k}: unknown key: expected one of "
+                                f"{', '.join(REBALANCE_KEYS)}")
+            elif typ is float and (isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0):
+                problems.append(f"{source}: rebalance.{k}: expected a number >= 0, got {v!r}")
+            elif typ is int and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+                problems.append(f"{source}: rebalance.{k}: expected an integer >= 1, got {v!r}")
+            elif k == "policy" and v not in POLICIES:
+                problems.append(f"{source}: rebalance.policy: expected one of {', '.join(POLICIES)}, got {v!r}")
+        if problems:
+            raise ScheduleError(problems)
+        return cls(name=name or d.get("name") or "custom", order=list(order), source=source,
+                   description=d.get("description", ""), halo_order=tuple(halo), lanes=dict(lanes),
+                   rebalance=dict(reb))
+
+    # ------------------------------------------------------------------ expansion
+    def _swapped(self, label: str) -> str:
+        if tuple(self.halo_order) == (2, 1):
+            if label.endswith("_1"):
+                return label[:-2] + "_2"
+            if label.endswith("_2"):
+                return label[:-2] + "_1"
+        return label
+
+    def program(self, rank: int, nranks: int, stages: int, user_tasks=(), rebalance=False) -> list[Task]:
+        """The ordered task instances of one rank (skipping kinds its role lacks)."""
+        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance)[0]
+
+    def _expand(self, rank, nranks, stages, users: dict, rebalance):
+        from .graph.tasks import make_task
+        labels = [self._swapped(x) for x in self.order]
+
+        def per_stage(label):
+            if label in users:
+                return users[label].per_stage
+            return TaskKind.from_label(label).per_stage
+
+        idx = [i for i, x in enumerate(labels) if per_stage(x)]
+        first, last = (idx[0], idx[-1]) if idx else (len(labels), len(labels) - 1)
+        blocks = [(labels[:first], None)]
+        for s in range(1, stages + 1):
+            blocks.append((labels[first:last + 1], s))
+        blocks.append((labels[last + 1:], None))
+        prog = []
+        for labs, s in blocks:
+            for lab in labs:
+                if lab in users:
+                    u = users[lab]
+                    st = s if u.per_stage else None
+                    if not u.per_stage and s not in (None, 1):
+                        continue
+                    prog.append(Task(lab, st, reads=tuple(u.reads), writes=tuple(u.writes),
+                                     accumulates=tuple(u.accumulates),
+                                     lane=self.lanes.get(lab, u.lane), fn=u.fn))
+                    continue
+                kind = TaskKind.from_label(lab)
+                if kind is TaskKind.REBALANCE and not rebalance:
+                    continue
+                if not applicable(kind, rank, nranks):
+                    continue
+                if not kind.per_stage and s not in (None, 1):
+                    continue  # dt tasks: once per step
+                prog.append(make_task(kind, s if kind.per_stage else None, rank, nranks,
+                                      lane=self.lanes.get(lab)))
+        return prog, labels
+
+    def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False) -> list[Task]:
+        """The reference order with user tasks inserted where the schedule puts them."""
+        prog = self.program(rank, nranks, stages, user_tasks, rebalance)
+        builtin = canonical_tasks(rank, nranks, stages, rebalance)
+        users = [t for t in prog if not isinstance(t.kind, TaskKind)]
+        out = list(builtin)
+        for u in users:
+            i = prog.index(u)
+            before = [t for t in prog[:i] if isinstance(t.kind, TaskKind) or t in out]
+            anchor = before[-1] if before else None
+            out.insert(out.index(anchor) + 1 if anchor in out else 0, u)
+        return out
+
+    # ------------------------------------------------------------------ validation
+    def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False) -> None:
+        """Prove the schedule for `ranks` ranks; raise ScheduleError listing every problem."""
+        src = self.source
+        users = {u.name: u for u in user_tasks}
+        problems = []
+        seen = set()
+        for lab in self.order:
+            if lab in seen:
+                problems.append(f"{src}: order: duplicated task {lab!r}: each task is placed exactly once")
+            seen.add(lab)
+            if lab not in users and lab not in TaskKind.labels():
+                problems.append(f"{src}: order: unknown task {lab!r}: expected one of "
+                                f"{', '.join(TaskKind.labels())} or a user task")
+        for lab in self.lanes:
+            if lab not in users and lab not in TaskKind.labels():
+                problems.append(f"{src}: lanes.{lab}: unknown task: expected one of {', '.join(TaskKind.labels())}")
+        if problems:
+            raise ScheduleError(problems)
+        programs = {}
+        for r in range(ranks):
+            prog = self.program(r, ranks, stages, user_tasks, rebalance)
+            programs[r] = prog
+            names = [t.name for t in prog]
+            for t in canonical_tasks(r, ranks, stages, rebalance):
+                if t.name not in names:
+                    problems.append(f"{src}: order: missing task {t.label!r} (needed as {t.name} on rank {r} "
+                                    f"of {ranks})")
+            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance))
+            for v in order_violations(g, names):
+                problems.append(f"{src}: order: rank {r}: {v}")
+        problems = list(dict.fromkeys(problems))
+        if problems:
+            raise ScheduleError(problems)
+        cyc = find_deadlock(multi_rank_graph(programs))
+        if cyc:
+            raise ScheduleError([f"{src}: deadlock on {ranks} ranks: {cyc}"])
+
+    def describe(self, ranks=1, stages=1, rank=0) -> str:
+        """Ordered tasks per lane for one rank (`sphgraph schedule show`)."""
+        prog = self.program(rank, ranks, stages, rebalance=bool(self.rebalance))
+        lines = [f"schedule {self.name} ({self.source}): rank {rank} of {ranks}, {stages} force stage(s)"]
+        if self.description:
+            lines.append(f"  {self.description}")
+        for lane in LANES:
+            ts = [f"{i:2d} {t.name}" for i, t in enumerate(prog) if t.lane == lane]
+            lines.append(f"  [{lane}]")
+            lines.extend(f"    {x}" for x in ts or ["(none)"])
+        return "\n".join(lines)

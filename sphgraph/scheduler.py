@@ -1,0 +1,92 @@
+"""The one run loop: a validated schedule executed on compute + comm backends.
+
+Per step, each rank's program (its tasks in schedule order) is handed to the
+comm backend's `execute`, which runs them (in order on one rank, interleaved
+by the discrete-event engine under mock MPI) and reports each task's start
+and end. Nothing else advances the solver: there is no second time loop.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .graph.kinds import TaskKind
+from .schedule import Schedule
+
+
+@dataclass
+class RankContext:
+    """What a task body sees: its rank's state and the backends."""
+
+    rank: int
+    state: object
+    compute: object
+    comm: object               # the comm backend's endpoint for this rank
+    domain: object = None      # sphgraph.domain.Slabs (multi-rank) or None
+    integrator: str = "verlet"
+    euler: bool = False
+    fixed_dt: float | None = None
+    balancer: object = None
+    scene: object = None
+
+
+@dataclass
+class TaskTimes:
+    """Start/end of every task on every rank, kept as growing columns."""
+
+    rank: list = field(default_factory=list)
+    step: list = field(default_factory=list)
+    task: list = field(default_factory=list)
+    lane: list = field(default_factory=list)
+    start: list = field(default_factory=list)
+    end: list = field(default_factory=list)
+
+    def columns(self) -> dict:
+        return {"rank": np.array(self.rank, np.int32), "step": np.array(self.step, np.int64),
+                "task": np.array(self.task, dtype=object), "lane": np.array(self.lane, dtype=object),
+                "start": np.array(self.start, float), "end": np.array(self.end, float)}
+
+    def seconds_by_kind(self, first_step: int = 0) -> dict:
+        out: dict[str, float] = {}
+        for s, name, a, b in zip(self.step, self.task, self.start, self.end):
+            if s >= first_step:
+                label = name.split("@")[0]
+                out[label] = out.get(label, 0.0) + (b - a)
+        return out
+
+    def clear(self):
+        for v in self.__dict__.values():
+            v.clear()
+
+
+class Scheduler:
+    """Runs steps of `schedule` for the ranks a comm backend drives."""
+
+    def __init__(self, schedule: Schedule, comm, contexts: list[RankContext], stages: int,
+                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0):
+        self.schedule = schedule
+        self.comm = comm
+        self.contexts = contexts
+        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, rebalance)
+                         for c in contexts}
+        self.times = TaskTimes()
+        self.t_origin = t_origin
+        self.record_times = True
+
+    def _record(self, rank, task, start, end):
+        if not self.record_times:
+            return
+        t = self.times
+        t.rank.append(rank)
+        t.step.append(self.contexts[0].state.step)
+        t.task.append(task.name)
+        t.lane.append(task.lane)
+        t.start.append(start - self.t_origin)
+        t.end.append(end - self.t_origin)
+
+    def step(self) -> None:
+        self.comm.execute([(c, self.programs[c.rank]) for c in self.contexts], self._record)
+
+    def task_kinds(self):
+        return {t.label for p in self.programs.values() for t in p if isinstance(t.kind, TaskKind)}

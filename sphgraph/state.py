@@ -1,0 +1,94 @@
+"""Per-rank solver state: what the tasks of one rank read and write.
+
+The names of the attributes are the data names that tasks declare in
+`sphgraph.graph.tasks` ("particles", "cells", "halo_1", "forces", "dt", ...).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import Constants
+from .particles import Particles
+
+
+@dataclass
+class Halo:
+    """What a neighbour sends of its edge: only what the forces need.
+
+    Position, velocity and density (seed paper §III-A), and the kind, which
+    the DBC formulation needs to tell boundary from fluid neighbours.
+    Pressure is derived from density on receipt; cells are built on receipt.
+    """
+
+    pos: np.ndarray
+    vel: np.ndarray
+    rho: np.ndarray
+    kind: np.ndarray
+    press: np.ndarray | None = None
+    cells: object = None
+
+    @property
+    def n(self) -> int:
+        return int(self.rho.shape[0])
+
+    def nbytes(self) -> int:
+        return self.pos.nbytes + self.vel.nbytes + self.rho.nbytes + self.kind.nbytes
+
+
+@dataclass
+class ForceBuffers:
+    """One partial force buffer (interior, halo 1 or halo 2): accumulate target."""
+
+    ace: np.ndarray
+    ar: np.ndarray
+    ddt: np.ndarray
+    cancel: np.ndarray
+    visc: np.ndarray
+
+    @classmethod
+    def empty(cls, n, dim, dtype):
+        return cls(ace=np.zeros((n, dim), dtype), ar=np.zeros(n, dtype), ddt=np.zeros(n, dtype),
+                   cancel=np.zeros(n, np.int8), visc=np.zeros(n, dtype))
+
+
+PARTS = ("interior", "halo_1", "halo_2")  # fixed summation order
+
+
+@dataclass
+class RankState:
+    particles: Particles
+    consts: Constants
+    dtype: type
+    rank: int = 0
+    nranks: int = 1
+    prm: np.ndarray = None
+    opt: np.ndarray = None
+    cells: object = None
+    press: np.ndarray = None
+    halos: dict = field(default_factory=dict)      # 1 / 2 -> Halo
+    parts: dict = field(default_factory=dict)      # part name -> ForceBuffers (this stage)
+    ace: np.ndarray = None                          # reduced forces of the current stage
+    ar: np.ndarray = None
+    visc: np.ndarray = None
+    reduced_stage: int = -1
+    dt_local: float = np.inf
+    dt: float = 0.0
+    time: float = 0.0
+    step: int = 0
+    stage0: tuple = None                            # Symplectic stage-start arrays
+    # slab decomposition (multi-rank): split axis and this rank's [lo, hi) cut coordinates
+    axis: int = 0
+    axes: np.ndarray = None                         # cell axis order (fast, mid, slow)
+    cfl: float = 0.2
+    rho_min: float = 0.0
+    rho_max: float = np.inf
+    cut_lo: float = -np.inf
+    cut_hi: float = np.inf
+    bytes_sent: int = 0
+    extra: dict = field(default_factory=dict)      # data of user-defined tasks
+
+    def __post_init__(self):
+        self.prm = self.consts.prm.astype(self.dtype)
+        self.opt = self.consts.opt.copy()
