@@ -1,0 +1,651 @@
+"""Scenes: a TOML file (or dict) -> a validated :class:`Scene` -> particles.
+
+A scene says what to simulate: resolution ``dp``, run length, the domain the
+particles must stay in, the physics options (:class:`~sphgraph.config.PhysicsConfig`)
+and the geometry -- ``[[fluid]]`` boxes and ``[[boundary]]`` tanks, obstacles and
+walls -- all on one lattice (see :mod:`sphgraph.geometry`). Every key is
+documented in ``docs/scenes.md``.
+
+Validation happens once, in :meth:`Scene.from_dict` (which :meth:`Scene.from_toml`
+and :meth:`Scene.with_overrides` go through). Every problem raises
+:class:`~sphgraph.errors.InputError` with one line of the form
+``"{file}: {key}: expected {form}, got {value!r}"`` where ``key`` is a dotted path
+(``fluid[0].max``, ``physics.kernel``) or a command-line flag (``--dp``).
+
+Axes: 2D scenes use (x, y) with y vertical; 3D scenes (x, y, z) with z vertical.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+import re
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from . import geometry as geo
+from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, PhysicsConfig, derive
+from .errors import InputError
+from .particles import FIXED, FLUID, Particles
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
+FORMAT_VERSION = 1
+DEFAULT_MAX_PARTICLES = 200_000_000
+# Tables that later features read (load balancing, probes, force output, moving
+# bodies). Accepted and kept raw in Scene.extra, unvalidated, until those
+# features validate them; extend this tuple to reserve another table name.
+EXTRA_TABLES = ("balance", "probes", "forces", "motion")
+TOP_KEYS = ("format", "name", "dim", "dp", "end_time", "output_interval", "domain",
+            "physics", "decomposition", "initial", "limits", "fluid", "boundary") + EXTRA_TABLES
+AXES = ("x", "y", "z")
+FLUID_TYPES = ("box",)
+BOUNDARY_TYPES = ("tank", "box", "wall")
+BOX_FILLS = ("solid", "surface")
+_ENTRY_KEYS = {
+    ("fluid", "box"): ("type", "min", "max"),
+    ("boundary", "tank"): ("type", "min", "max", "open_top", "layers"),
+    ("boundary", "box"): ("type", "min", "max", "fill", "layers", "open_bottom"),
+    ("boundary", "wall"): ("type", "min", "max", "layers", "direction"),
+}
+# physics options with a fixed set of values, and lower bounds of numeric ones
+_PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
+                 "cell_size": CELL_SIZES}
+_PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
+    "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
+    "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
+    "delta": (0, False), "verlet_euler_every": (1, False), "cfl": (0, True),
+    "hswl": (0, True), "rho_min": (0, False), "rho_max": (0, True),
+}
+_PHYS_VECTORS = ("gravity",)
+
+
+class _Missing:
+    def __repr__(self):
+        return "nothing (key missing)"
+
+
+_MISSING = _Missing()
+
+
+class _Checker:
+    """Builds the one-line errors of one source and checks plain values."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def error(self, key: str, form: str, value) -> InputError:
+        text = repr(value)
+        if len(text) > 120:
+            text = text[:117] + "..."
+        return InputError(f"{self.source}: {key}: expected {form}, got {text}")
+
+    def number(self, key, v, gt=None, ge=None, le=None) -> float:
+        form = "a number"
+        if gt is not None:
+            form += f" > {gt}"
+        if ge is not None:
+            form += f" >= {ge}"
+        if le is not None:
+            form += f" <= {le}"
+        # bool is an int subclass in Python, but `true` is never a number in a scene
+        if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
+                or (gt is not None and not v > gt) or (ge is not None and not v >= ge)
+                or (le is not None and not v <= le)):
+            raise self.error(key, form, v)
+        return float(v)
+
+    def integer(self, key, v, ge=None) -> int:
+        if not isinstance(v, int) or isinstance(v, bool) or (ge is not None and v < ge):
+            raise self.error(key, "an integer" + (f" >= {ge}" if ge is not None else ""), v)
+        return int(v)
+
+    def boolean(self, key, v) -> bool:
+        if not isinstance(v, bool):
+            raise self.error(key, "true or false", v)
+        return v
+
+    def choice(self, key, v, choices) -> str:
+        if not isinstance(v, str) or v not in choices:
+            raise self.error(key, "one of " + ", ".join(f'"{c}"' for c in choices), v)
+        return v
+
+    def vector(self, key, v, dim) -> np.ndarray:
+        if (not isinstance(v, (list, tuple)) or len(v) != dim
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                           and math.isfinite(x) for x in v)):
+            raise self.error(key, f"a list of {dim} numbers", v)
+        return np.array(v, dtype=np.float64)
+
+    def table(self, key, v, allowed) -> dict:
+        if not isinstance(v, dict):
+            raise self.error(key, "a table", v)
+        for k in v:
+            if k not in allowed:
+                path = f"{key}.{k}" if key else k
+                raise self.error(path, "a known key (one of: " + ", ".join(allowed) + ")", k)
+        return v
+
+    def require(self, key, table, name):
+        if name not in table:
+            raise self.error(f"{key}.{name}" if key else name, _FORMS.get(name, "a value"), _MISSING)
+        return table[name]
+
+
+_FORMS = {"format": f"{FORMAT_VERSION}", "dim": "2 or 3", "dp": "a number > 0",
+          "end_time": "a number > 0", "domain": "a table with min and max",
+          "min": "a list of numbers", "max": "a list of numbers", "type": "a geometry type",
+          "fluid": "at least one [[fluid]] table"}
+
+
+def _vlist(a) -> list:
+    return [float(x) for x in a]
+
+
+# --- the scene ------------------------------------------------------------------------
+
+@dataclass(eq=False)
+class Scene:
+    """A validated scene. Build one with :meth:`from_toml` or :meth:`from_dict`.
+
+    Attributes
+    ----------
+    name : str
+        Run name (output goes to ``out/<name>`` by default); default: file stem.
+    dim : int
+        2 or 3. 2D uses (x, y) with y vertical; 3D (x, y, z) with z vertical.
+    dp : float
+        Particle spacing [m].
+    end_time, output_interval : float
+        Simulated time [s] and time between output frames [s].
+    domain_min, domain_max : numpy.ndarray
+        float64 [dim]: the region particles must stay inside (leaving it is a
+        numerical failure).
+    lattice_origin : numpy.ndarray
+        float64 [dim]: anchor of the particle lattice (``domain.origin``,
+        default ``domain_min``); particles sit at ``lattice_origin + k*dp``.
+    physics : PhysicsConfig
+        Physics options; ``gravity`` is always filled in.
+    decomposition_axis : str
+        "x", "y", "z" (3D only) or "auto".
+    hydrostatic : bool
+        Initialise fluid density hydrostatically instead of ``rho0``.
+    max_particles : int
+        Refuse scenes whose estimated particle count exceeds this.
+    fluid, boundary : list of dict
+        Normalised geometry entries (every key present).
+    extra : dict
+        Raw tables named in :data:`EXTRA_TABLES`.
+    text : str
+        TOML text of the scene (the file itself, or an equivalent emitted text).
+    source : str
+        Where the scene came from (a path, or ``"<dict>"``).
+    """
+
+    name: str
+    dim: int
+    dp: float
+    end_time: float
+    output_interval: float
+    domain_min: np.ndarray
+    domain_max: np.ndarray
+    physics: PhysicsConfig
+    decomposition_axis: str = "auto"
+    text: str = ""
+    source: str = "<dict>"
+    lattice_origin: np.ndarray | None = None
+    hydrostatic: bool = False
+    max_particles: int = DEFAULT_MAX_PARTICLES
+    fluid: list = field(default_factory=list)
+    boundary: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+    _cache: dict = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self):
+        self.domain_min = np.asarray(self.domain_min, dtype=np.float64)
+        self.domain_max = np.asarray(self.domain_max, dtype=np.float64)
+        if self.lattice_origin is None:
+            self.lattice_origin = self.domain_min.copy()
+        self.lattice_origin = np.asarray(self.lattice_origin, dtype=np.float64)
+
+    # --- construction ------------------------------------------------------------
+
+    @classmethod
+    def from_toml(cls, path) -> "Scene":
+        """Read and validate a scene file.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            A TOML scene file (format 1).
+
+        Raises
+        ------
+        InputError
+            Unreadable file, TOML syntax error, or any invalid key.
+        """
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(f"{path}: file: expected a readable UTF-8 scene file, "
+                             f"got {type(e).__name__}: {e}") from None
+        try:
+            d = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(f"{path}: TOML syntax: expected valid TOML, got {e}") from None
+        return cls._validate(d, str(path), default_name=path.stem, text=text)
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "<dict>") -> "Scene":
+        """Validate a scene given as a dict (the parsed TOML structure).
+
+        ``text`` becomes an equivalent TOML text (:func:`dumps_toml` of
+        :meth:`to_dict`), so output files always carry a loadable scene.
+        """
+        stem = Path(source).stem if not source.startswith("<") else "scene"
+        return cls._validate(d, source, default_name=stem or "scene", text=None)
+
+    def with_overrides(self, dp=None, end_time=None, **physics_overrides) -> "Scene":
+        """A new, re-validated scene with command-line style overrides.
+
+        Parameters
+        ----------
+        dp, end_time : float, optional
+            New spacing / end time (errors name ``--dp`` / ``--end-time``).
+        **physics_overrides
+            ``PhysicsConfig`` fields, e.g. ``visc_alpha=0.02``.
+        """
+        c = _Checker(self.source)
+        d = self.to_dict()
+        if dp is not None:
+            d["dp"] = c.number("--dp", dp, gt=0)
+        if end_time is not None:
+            d["end_time"] = c.number("--end-time", end_time, gt=0)
+        d["physics"].update(physics_overrides)
+        return self._validate(d, self.source, default_name=self.name, text=None)
+
+    @classmethod
+    def _validate(cls, d, source, default_name, text) -> "Scene":
+        c = _Checker(source)
+        c.table("", d, TOP_KEYS)
+        fmt = c.require("", d, "format")
+        if fmt != FORMAT_VERSION or isinstance(fmt, bool):
+            raise c.error("format", f"{FORMAT_VERSION} (the only scene format this version reads)", fmt)
+        name = d.get("name", default_name)
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
+            raise c.error("name", "a name of letters, digits, '.', '_' or '-'", name)
+        dim = c.require("", d, "dim")
+        if dim not in (2, 3) or isinstance(dim, bool):
+            raise c.error("dim", "2 or 3", dim)
+        dp = c.number("dp", c.require("", d, "dp"), gt=0)
+        end_time = c.number("end_time", c.require("", d, "end_time"), gt=0)
+        out_dt = c.number("output_interval", d.get("output_interval", end_time / 20), gt=0)
+
+        dom = c.table("domain", c.require("", d, "domain"), ("min", "max", "origin"))
+        dmin = c.vector("domain.min", c.require("domain", dom, "min"), dim)
+        dmax = c.vector("domain.max", c.require("domain", dom, "max"), dim)
+        if not np.all(dmax > dmin):
+            raise c.error("domain.max", f"every coordinate > domain.min {_vlist(dmin)}", dom["max"])
+        origin = c.vector("domain.origin", dom.get("origin", _vlist(dmin)), dim)
+
+        physics = _physics(c, d.get("physics", {}), dim)
+        dec = c.table("decomposition", d.get("decomposition", {}), ("axis",))
+        axis = c.choice("decomposition.axis", dec.get("axis", "auto"), AXES[:dim] + ("auto",))
+        ini = c.table("initial", d.get("initial", {}), ("hydrostatic",))
+        hydro = c.boolean("initial.hydrostatic", ini.get("hydrostatic", False))
+        lim = c.table("limits", d.get("limits", {}), ("max_particles",))
+        maxp = int(c.number("limits.max_particles",
+                            lim.get("max_particles", DEFAULT_MAX_PARTICLES), ge=1))
+
+        tol = geo.TOL * dp
+        fluid = []
+        for i, e in enumerate(_entries(c, d, "fluid", required=True)):
+            key = f"fluid[{i}]"
+            e = _entry(c, key, e, "fluid", FLUID_TYPES, dim)
+            if np.any(e["_min"] < dmin - tol):
+                raise c.error(f"{key}.min", f"a point inside the domain (>= {_vlist(dmin)})", e["min"])
+            if np.any(e["_max"] > dmax + tol):
+                raise c.error(f"{key}.max", f"a point inside the domain (<= {_vlist(dmax)})", e["max"])
+            fluid.append(_public(e))
+        boundary = [_public(_entry(c, f"boundary[{i}]", e, "boundary", BOUNDARY_TYPES, dim))
+                    for i, e in enumerate(_entries(c, d, "boundary", required=False))]
+        extra = {k: copy.deepcopy(d[k]) for k in EXTRA_TABLES if k in d}
+
+        scene = cls(name=name, dim=dim, dp=dp, end_time=end_time, output_interval=out_dt,
+                    domain_min=dmin, domain_max=dmax, physics=physics,
+                    decomposition_axis=axis, text="", source=source, lattice_origin=origin,
+                    hydrostatic=hydro, max_particles=maxp, fluid=fluid, boundary=boundary,
+                    extra=extra)
+        scene._check_extent(c)
+        scene.text = text if text is not None else (
+            f"# sphgraph scene, emitted from {source}\n" + dumps_toml(scene.to_dict()))
+        return scene
+
+    def _check_extent(self, c: _Checker) -> None:
+        """Cheap checks on index boxes (no allocation): boundary inside the
+        domain, some fluid points, and the estimated count within the limit."""
+        lat = self._lattice_def()
+        tol = geo.TOL * self.dp
+        for i, e in enumerate(self.boundary):
+            bb = geo.bounding_box(_boundary_boxes(e, lat, self.dim))
+            lo, hi = lat.positions(bb[0][None])[0], lat.positions(bb[1][None])[0]
+            if np.any(lo < self.domain_min - tol) or np.any(hi > self.domain_max + tol):
+                raise c.error(f"boundary[{i}]", f"particles inside the domain {_vlist(self.domain_min)}"
+                              f" - {_vlist(self.domain_max)} (extend [domain])",
+                              f"particles spanning {_vlist(np.round(lo, 12))} - {_vlist(np.round(hi, 12))}")
+        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid]
+        if geo.boxes_count(fboxes) == 0:
+            raise c.error("fluid", f"boxes holding lattice points (spacing dp = {self.dp})", 0)
+        bslabs = [b for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
+        estimate = geo.boxes_count(fboxes) + geo.boxes_count(bslabs)
+        if estimate > self.max_particles:
+            raise c.error("limits.max_particles",
+                          f"an estimated particle count <= {self.max_particles} "
+                          "(increase dp or raise limits.max_particles)", estimate)
+
+    # --- serialisation -------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """The scene as a plain dict with every default filled in.
+
+        ``Scene.from_dict(scene.to_dict())`` gives an equivalent scene.
+        """
+        phys = {k: (list(v) if isinstance(v, tuple) else v)
+                for k, v in self.physics.to_dict().items() if v is not None}
+        d = {
+            "format": FORMAT_VERSION, "name": self.name, "dim": self.dim, "dp": self.dp,
+            "end_time": self.end_time, "output_interval": self.output_interval,
+            "domain": {"min": _vlist(self.domain_min), "max": _vlist(self.domain_max),
+                       "origin": _vlist(self.lattice_origin)},
+            "physics": phys,
+            "decomposition": {"axis": self.decomposition_axis},
+            "initial": {"hydrostatic": self.hydrostatic},
+            "limits": {"max_particles": self.max_particles},
+            "fluid": copy.deepcopy(self.fluid),
+            "boundary": copy.deepcopy(self.boundary),
+        }
+        d.update(copy.deepcopy(self.extra))
+        return d
+
+    # --- particles -------------------------------------------------------------------
+
+    def _lattice_def(self) -> geo.Lattice:
+        return geo.Lattice(self.lattice_origin, self.dp)
+
+    def _lattice(self):
+        """(boundary index vectors, fluid index vectors), cached: the particle set."""
+        if "lattice" in self._cache:
+            return self._cache["lattice"]
+        lat = self._lattice_def()
+        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid]
+        bslabs = [b for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
+        # obstacles are solid bodies: no fluid inside them even when drawn as a surface
+        solids = [(lat.nearest(e["min"]), lat.nearest(e["max"]))
+                  for e in self.boundary if e["type"] == "box"]
+        try:
+            grid = geo.Grid(*geo.bounding_box(fboxes + bslabs))
+        except OverflowError:
+            raise _Checker(self.source).error(
+                "dp", "a spacing whose lattice over the geometry fits int64 keys", self.dp) from None
+        bkeys = grid.union_keys(bslabs)
+        # the hollow of a surface obstacle is empty (DualSPHysics voids the box before
+        # drawing its faces); with open_bottom this also clears the floor under it
+        hollows = [geo.hollow_box(lat.nearest(e["min"]), lat.nearest(e["max"]), e["layers"],
+                                  e["open_bottom"])
+                   for e in self.boundary if e["type"] == "box" and e["fill"] == "surface"]
+        if hollows:
+            bidx = grid.indices(bkeys)
+            keep = np.ones(len(bidx), bool)
+            for box in hollows:
+                keep &= ~geo.in_box(bidx, box)
+            bkeys = bkeys[keep]
+        fkeys = grid.union_keys(fboxes)          # overlapping fluid boxes merge
+        fkeys = fkeys[~geo.contains(bkeys, fkeys)]  # fluid on a boundary point is dropped
+        fidx = grid.indices(fkeys)
+        if solids:
+            inside = np.zeros(len(fidx), bool)
+            for box in solids:
+                inside |= geo.in_box(fidx, box)
+            fidx = fidx[~inside]
+        if len(fidx) == 0:
+            raise _Checker(self.source).error(
+                "fluid", "at least one fluid particle outside the boundaries", 0)
+        self._cache["lattice"] = (grid.indices(bkeys), fidx)
+        return self._cache["lattice"]
+
+    def count_particles(self) -> tuple:
+        """(n_fluid, n_boundary) of :meth:`build_particles` (computed on indices only)."""
+        bidx, fidx = self._lattice()
+        return int(len(fidx)), int(len(bidx))
+
+    @property
+    def vertical(self) -> int:
+        """Index of the vertical axis (y in 2D, z in 3D)."""
+        return self.dim - 1
+
+    @property
+    def hswl(self) -> float:
+        """Still-water depth used for the speed of sound c0 [m].
+
+        ``physics.hswl`` if set; otherwise the height of the fluid particles,
+        ``(z_top - z_bottom) + dp``: each particle stands for a layer dp thick,
+        so a column of n layers is n*dp deep (the 2D dam break's 200 rows at
+        dp = 0.01 give 2.0 m, the column's nominal height). DualSPHysics'
+        ``<hswl auto="true">`` likewise measures the height of the generated
+        fluid ("maximum still water level", CaseDambreak_Def.xml).
+        """
+        if self.physics.hswl is not None:
+            return float(self.physics.hswl)
+        kz = self._lattice()[1][:, self.vertical]
+        return float(kz.max() - kz.min() + 1) * self.dp
+
+    @property
+    def constants(self):
+        """Derived constants (:func:`sphgraph.config.derive`) at this scene's dp and hswl."""
+        return derive(self.physics, self.dim, self.dp, self.hswl)
+
+    def surface_level(self) -> float:
+        """Free-surface height for the hydrostatic start: lowest fluid row - dp/2 + hswl."""
+        kz = self._lattice()[1][:, self.vertical]
+        z_bottom = self.lattice_origin[self.vertical] + kz.min() * self.dp
+        return float(z_bottom - 0.5 * self.dp + self.hswl)
+
+    def build_particles(self, dtype=np.float64) -> Particles:
+        """All particles of the scene at rest.
+
+        Boundary particles come first, then fluid; ids are 0..N-1 in that
+        order (each group sorted by lattice index, x slowest). Boundary density
+        is rho0. Fluid density is rho0, or with ``initial.hydrostatic`` the Tait
+        inverse of the hydrostatic pressure::
+
+            rho = rho0 * (1 + rho0*g*(z_s - z)/B)**(1/gamma)
+
+        with ``z_s`` = :meth:`surface_level` and B from :attr:`constants`.
+
+        Parameters
+        ----------
+        dtype : numpy dtype
+            Precision of velocity and density (positions are always float64).
+        """
+        bidx, fidx = self._lattice()
+        lat = self._lattice_def()
+        pos = np.concatenate([lat.positions(bidx), lat.positions(fidx)])
+        nb, nf = len(bidx), len(fidx)
+        n = nb + nf
+        kind = np.concatenate([np.full(nb, FIXED, np.int8), np.full(nf, FLUID, np.int8)])
+        rho0 = self.physics.rho0
+        rho = np.full(n, rho0, dtype=np.float64)
+        if self.hydrostatic:
+            k = self.constants
+            g = abs(float(k.gravity[self.vertical]))
+            depth = self.surface_level() - pos[nb:, self.vertical]
+            rho[nb:] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+        return Particles.create(np.arange(n, dtype=np.int64), kind, pos,
+                                np.zeros((n, self.dim)), rho, dtype=dtype)
+
+
+# --- validation helpers ------------------------------------------------------------------
+
+def _physics(c: _Checker, p, dim) -> PhysicsConfig:
+    names = PhysicsConfig.field_names()
+    c.table("physics", p, names)
+    defaults = {f.name: f.default for f in fields(PhysicsConfig)}
+    vals = {}
+    for k, v in p.items():
+        key = f"physics.{k}"
+        default = defaults[k]
+        if k in _PHYS_CHOICES:
+            vals[k] = c.choice(key, v, _PHYS_CHOICES[k])
+        elif k in _PHYS_VECTORS:
+            vals[k] = tuple(float(x) for x in c.vector(key, v, dim))
+        elif isinstance(default, bool):
+            vals[k] = c.boolean(key, v)
+        elif isinstance(default, int):
+            bound = _PHYS_BOUNDS.get(k, (None, False))[0]
+            vals[k] = c.integer(key, v, ge=bound)
+        elif isinstance(default, str):
+            if not isinstance(v, str):
+                raise c.error(key, "a string", v)
+            vals[k] = v
+        else:  # float, or a number that defaults to None (auto)
+            bound, strict = _PHYS_BOUNDS.get(k, (None, False))
+            vals[k] = c.number(key, v, gt=bound if strict else None,
+                               ge=None if strict else bound, le=1 if k == "cfl" else None)
+    cfg = PhysicsConfig(**vals)
+    if cfg.rho_max <= cfg.rho_min:
+        raise c.error("physics.rho_max", f"a number > physics.rho_min = {cfg.rho_min}", cfg.rho_max)
+    if cfg.gravity is None:
+        cfg.gravity = tuple([0.0] * (dim - 1) + [-9.81])
+    return cfg
+
+
+def _entries(c: _Checker, d, name, required) -> list:
+    v = d.get(name, _MISSING)
+    if v is _MISSING:
+        if required:
+            raise c.error(name, f"at least one [[{name}]] table", v)
+        return []
+    if not isinstance(v, list) or not all(isinstance(e, dict) for e in v):
+        raise c.error(name, f"an array of tables ([[{name}]] entries)", v)
+    if required and not v:
+        raise c.error(name, f"at least one [[{name}]] table", v)
+    return v
+
+
+def _entry(c: _Checker, key, e, group, types, dim) -> dict:
+    """Validate one geometry entry; returns it normalised (+ '_min'/'_max' arrays)."""
+    t = c.choice(f"{key}.type", c.require(key, e, "type"), types)
+    c.table(key, e, _ENTRY_KEYS[(group, t)])
+    lo = c.vector(f"{key}.min", c.require(key, e, "min"), dim)
+    hi = c.vector(f"{key}.max", c.require(key, e, "max"), dim)
+    out = {"type": t, "min": _vlist(lo), "max": _vlist(hi), "_min": lo, "_max": hi}
+    if t == "wall":
+        flat = np.flatnonzero(hi == lo)
+        if len(flat) != 1 or np.any(np.delete(hi, flat) <= np.delete(lo, flat)):
+            raise c.error(f"{key}.max", "max == min on exactly one axis (the wall's normal) "
+                          f"and max > min on the others (min = {_vlist(lo)})", e["max"])
+        out["direction"] = c.choice(f"{key}.direction", e.get("direction", "-"), ("-", "+"))
+    elif not np.all(hi > lo):
+        raise c.error(f"{key}.max", f"every coordinate > {key}.min {_vlist(lo)}", e["max"])
+    if t == "tank":
+        out["open_top"] = c.boolean(f"{key}.open_top", e.get("open_top", True))
+    if t == "box" and group == "boundary":
+        out["fill"] = c.choice(f"{key}.fill", e.get("fill", "solid"), BOX_FILLS)
+        for k in ("layers", "open_bottom"):
+            if out["fill"] == "solid" and k in e:
+                raise c.error(f"{key}.{k}", f'no {k} key with fill = "solid" '
+                              '(it shapes the shell of fill = "surface")', e[k])
+        if out["fill"] == "surface":
+            out["open_bottom"] = c.boolean(f"{key}.open_bottom", e.get("open_bottom", False))
+    if group == "boundary" and not (t == "box" and out["fill"] == "solid"):
+        out["layers"] = c.integer(f"{key}.layers", e.get("layers", 1), ge=1)
+    return out
+
+
+def _public(e: dict) -> dict:
+    return {k: v for k, v in e.items() if not k.startswith("_")}
+
+
+def _boundary_boxes(e: dict, lat: geo.Lattice, dim: int) -> list:
+    """Index boxes (slabs) of one normalised boundary entry; faces snap to the nearest plane."""
+    lo, hi = lat.nearest(e["min"]), lat.nearest(e["max"])
+    if e["type"] == "tank":
+        return geo.tank_boxes(lo, hi, e["layers"], e["open_top"])
+    if e["type"] == "box":
+        if e["fill"] == "solid":
+            return [(lo, hi)]
+        return geo.shell_boxes(lo, hi, e["layers"], e["open_bottom"])
+    axis = int(np.flatnonzero(np.asarray(e["max"]) == np.asarray(e["min"]))[0])
+    return geo.wall_boxes(lo, hi, axis, 1 if e["direction"] == "+" else -1, e["layers"])
+
+
+# --- a tiny TOML writer (tomllib only reads) ------------------------------------------------
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _toml_key(k: str) -> str:
+    return k if _BARE_KEY.fullmatch(k) else _toml_str(k)
+
+
+def _toml_str(s: str) -> str:
+    # JSON string escapes are a subset of TOML basic-string escapes; DEL must be escaped too
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)  # shortest round-trip form; '1e-05' is valid TOML
+    if isinstance(v, str):
+        return _toml_str(v)
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}"
+                               for k, x in v.items() if x is not None) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _is_table_array(v) -> bool:
+    return isinstance(v, list) and len(v) > 0 and all(isinstance(x, dict) for x in v)
+
+
+def _emit(table: dict, path: list, lines: list) -> None:
+    for k, v in table.items():  # plain key/values first: they belong to this table's header
+        if v is not None and not isinstance(v, dict) and not _is_table_array(v):
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+    for k, v in table.items():
+        p = path + [_toml_key(k)]
+        if isinstance(v, dict):
+            lines += ["", f"[{'.'.join(p)}]"]
+            _emit(v, p, lines)
+        elif _is_table_array(v):
+            for item in v:
+                lines += ["", f"[[{'.'.join(p)}]]"]
+                _emit(item, p, lines)
+
+
+def dumps_toml(d: dict) -> str:
+    """TOML text for a dict of plain values (str, int, float, bool, lists, dicts).
+
+    ``None`` values are left out (TOML has no null). ``tomllib.loads`` of the
+    result equals ``d`` up to those omissions and tuples read back as lists.
+    """
+    lines: list = []
+    _emit(d, [], lines)
+    return "\n".join(lines).lstrip("\n") + "\n"
