@@ -47,6 +47,35 @@ class ComputeBackend:
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         raise NotImplementedError
 
+    def count_pairs(self, state) -> int:
+        """Pairs within 2h over owned destinations (interior + halos), each counted from
+        each side as DualSPHysics counts interactions. Host-side, for benchmarks."""
+        from sphgraph.cells import build_grid
+        from . import cpu_kernels as K
+        a = self.host_arrays(state)
+        pos = np.ascontiguousarray(a["position"], dtype=np.float64)
+        c = state.consts
+        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        total = 0
+        sources = [pos] + [np.asarray(h.pos, np.float64) for h in state.halos.values() if h is not None and h.n]
+        for src in sources:
+            grid, perm = build_grid(src, c.cell_size, reach, state.axes)
+            counts = np.zeros(len(pos), np.int64)
+            K.count_pairs(pos, np.ascontiguousarray(src[perm]), *grid.kernel_args(), 4.0 * c.h * c.h, counts)
+            total += int(counts.sum())
+        return total
+
+    def state_bytes(self, state) -> int:
+        """Memory held for `state` (host arrays on CPU, device arrays on GPU)."""
+        n = state.particles.nbytes()
+        for a in (state.press, state.ace, state.ar, state.visc):
+            n += 0 if a is None else a.nbytes
+        for b in state.parts.values():
+            n += sum(x.nbytes for x in (b.ace, b.ar, b.ddt, b.cancel, b.visc))
+        if state.cells is not None:
+            n += state.cells.start.nbytes
+        return n
+
     def check(self, state, lo, hi) -> tuple[int, int] | None:
         """(row, cause) of a bad particle or None: cause 1 NaN, 2 left domain, 3 density bounds."""
         raise NotImplementedError

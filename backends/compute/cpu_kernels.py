@@ -295,3 +295,34 @@ def gather_rows2(src, perm, dst):
     for i in prange(perm.shape[0]):
         for d in range(m):
             dst[i, d] = src[perm[i], d]
+
+
+@njit(parallel=True, cache=True)
+def count_pairs(dpos, spos, start, origin, inv_size, dims, axes, reach, support2, counts):
+    """Pairs within 2h of each destination (DualSPHysics' count: from each side)."""
+    dim = dpos.shape[1]
+    nf = dims[0]
+    nm = dims[1]
+    for i in prange(dpos.shape[0]):
+        lo = np.zeros(3, np.int64)
+        hi = np.zeros(3, np.int64)
+        for k in range(3):
+            a = axes[k]
+            if a >= 0:
+                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
+                lo[k] = max(c - reach, 0)
+                hi[k] = min(c + reach, dims[k] - 1)
+        n = 0
+        for c2 in range(lo[2], hi[2] + 1):
+            for c1 in range(lo[1], hi[1] + 1):
+                row = (c2 * nm + c1) * nf
+                if lo[0] > hi[0]:
+                    continue
+                for j in range(start[row + lo[0]], start[row + hi[0] + 1]):
+                    r2 = 0.0
+                    for d in range(dim):
+                        t = dpos[i, d] - spos[j, d]
+                        r2 += t * t
+                    if r2 <= support2 and r2 >= 1e-18:
+                        n += 1
+        counts[i] = n

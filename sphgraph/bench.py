@@ -1,0 +1,57 @@
+"""`sphgraph bench`: time a scene's steps through the real scheduler (DESIGN.md §5 fields)."""
+from __future__ import annotations
+
+import time
+
+from . import __version__
+
+
+def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", ranks=1,
+          schedule="production", precision=None, dp=None, comm_options=None) -> dict | None:
+    """Run `warmup` untimed steps (compilation), then `steps` timed ones; no output files.
+
+    Interactions are counted as DualSPHysics does: pairs within 2h, from each
+    particle's side, per force evaluation; counted on the final state and
+    multiplied by the force evaluations of the timed steps.
+    """
+    from .errors import InputError
+    from .solver import Simulation
+    if steps < 1 or warmup < 0:
+        raise InputError(f"--steps/--warmup: expected steps >= 1 and warmup >= 0, got {steps}, {warmup}")
+    t0 = time.perf_counter()
+    sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
+                     precision=precision, dp=dp, end_time=None, comm_options=comm_options)
+    setup_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for _ in range(max(warmup, 1)):
+        sim.step()
+    compile_s = time.perf_counter() - t0
+    sim.scheduler.times.clear()
+    first = sim.step_count
+    sim.comm.barrier() if hasattr(sim.comm, "barrier") else None
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        sim.step()
+    sim.comm.barrier() if hasattr(sim.comm, "barrier") else None
+    wall = time.perf_counter() - t0
+    pairs = sum(sim.compute.count_pairs(c.state) for c in sim.contexts)
+    pairs = sim.comm.allreduce(pairs, "sum") if sim.nranks > 1 else pairs
+    mem = sum(sim.compute.state_bytes(c.state) for c in sim.contexts)
+    mem = sim.comm.allreduce(mem, "sum") if sim.nranks > 1 else mem
+    if not sim.comm.is_root:
+        return None
+    evals = steps * sim.stages
+    task_s = sim.scheduler.times.seconds_by_kind(first_step=first)
+    if sim.comm.virtual_time:
+        wall = max(sim.scheduler.times.end) - min(sim.scheduler.times.start) if sim.scheduler.times.end else wall
+    return {
+        "scene": sim.scene.name, "particles": sim.n_total, "fluid_particles": sim.n_fluid, "dim": sim.dim,
+        "steps": steps, "wall_s": wall, "compile_s": compile_s, "setup_s": setup_s,
+        "steps_per_s": steps / wall, "particle_steps_per_s": steps * sim.n_total / wall,
+        "interactions_per_s": pairs * evals / wall, "pairs_per_particle": pairs / sim.n_total,
+        "bytes_per_particle": mem / sim.n_total, "task_seconds": task_s,
+        "backend": sim.compute.name, "comm": sim.comm.name, "ranks": sim.nranks,
+        "precision": sim.precision, "integrator": sim.integrator, "schedule": sim.schedule.name,
+        "dp": sim.scene.dp, "device": sim.compute.device_name(), "version": __version__,
+        "virtual_time": bool(sim.comm.virtual_time),
+    }

@@ -1,0 +1,235 @@
+"""Command line: `sphgraph run | bench | info | schedule | trace | plot`.
+
+A thin layer over the Python API. Exit codes (DESIGN.md §5): 0 success,
+1 numerical failure, 2 bad input or usage (one line, no traceback), 3 internal
+error (short message; traceback in a log file).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import traceback
+
+from .errors import InputError, NumericalError, SphgraphError
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2 (argparse would print usage too)
+        raise InputError(f"{self.prog}: {message}")
+
+
+def _run_flags(p):
+    p.add_argument("scene", help="scene TOML file")
+    p.add_argument("--end-time", type=float, help="override the scene's end time [s]")
+    p.add_argument("--max-steps", type=int, help="stop after N steps")
+    p.add_argument("--dp", type=float, help="override the particle spacing [m]")
+    p.add_argument("--backend", default="numba-cpu", help="compute backend: numba-cpu | numba-cuda")
+    p.add_argument("--precision", choices=["float32", "float64"],
+                   help="default float64 on numba-cpu, float32 on numba-cuda")
+    p.add_argument("--comm", default="single", help="comm backend: single | mock | mpi")
+    p.add_argument("--ranks", type=int, default=1, help="ranks for --comm mock")
+    p.add_argument("--schedule", default="production", help="schedule name or TOML file")
+    p.add_argument("--rank-speed", help="mock MPI: comma-separated relative rank speeds, e.g. 1,2,1,0.5")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(prog="sphgraph", description="SPH free-surface flow; every step a task graph")
+    sub = ap.add_subparsers(dest="cmd", parser_class=_Parser)
+    sub.required = True
+
+    p = sub.add_parser("run", help="run a scene")
+    _run_flags(p)
+    p.add_argument("--out", help="output directory (default out/<scene name>)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+
+    p = sub.add_parser("bench", help="time a scene; one JSON object on stdout")
+    _run_flags(p)
+    p.add_argument("--steps", type=int, default=50, help="timed steps")
+    p.add_argument("--warmup", type=int, default=5, help="untimed steps first (compilation)")
+    p.add_argument("--json", action="store_true", help="print JSON (the default and only format)")
+
+    sub.add_parser("info", help="versions, backends, threads")
+
+    p = sub.add_parser("schedule", help="validate or show a schedule")
+    ssub = p.add_subparsers(dest="action", parser_class=_Parser)
+    ssub.required = True
+    v = ssub.add_parser("validate", help="prove a schedule (exit 2 with one line per problem)")
+    v.add_argument("file")
+    v.add_argument("--ranks", type=int, default=3)
+    v.add_argument("--integrator", choices=["verlet", "symplectic"], default=None,
+                   help="default: check both")
+    s = ssub.add_parser("show", help="ordered tasks per lane")
+    s.add_argument("name")
+    s.add_argument("--ranks", type=int, default=3)
+    s.add_argument("--rank", type=int, default=1)
+    s.add_argument("--integrator", choices=["verlet", "symplectic"], default="verlet")
+    s.add_argument("--plot", help="draw the multi-rank graph to this PNG/SVG file")
+
+    p = sub.add_parser("trace", help="export task timings")
+    p.add_argument("outdir")
+    p.add_argument("--chrome", required=True, help="write Chrome trace-event JSON (Perfetto)")
+
+    p = sub.add_parser("plot", help="figures from a run")
+    psub = p.add_subparsers(dest="what", parser_class=_Parser)
+    psub.required = True
+    q = psub.add_parser("snapshot", help="one frame as a scatter plot")
+    q.add_argument("outdir")
+    q.add_argument("--time", type=float)
+    q.add_argument("--field", default="pressure")
+    q.add_argument("--output", "-o")
+    for name, helptext in (("timeline", "per-rank Gantt chart of the tasks (paper Fig. 2)"),
+                           ("breakdown", "share of each task per rank (paper Figs. 11-12)")):
+        q = psub.add_parser(name, help=helptext)
+        q.add_argument("outdir")
+        q.add_argument("--output", "-o")
+        if name == "timeline":
+            q.add_argument("--steps", default="last3", help="'last3' (default), 'all' or A:B")
+    return ap
+
+
+def _rank_speed(text):
+    if not text:
+        return None
+    try:
+        return [float(x) for x in text.split(",")]
+    except ValueError:
+        raise InputError(f"--rank-speed: expected comma-separated numbers, got {text!r}") from None
+
+
+def _comm_options(args):
+    opts = {}
+    rs = _rank_speed(getattr(args, "rank_speed", None))
+    if rs is not None:
+        opts["rank_speed"] = rs
+    return opts
+
+
+def cmd_run(args) -> int:
+    from .solver import run
+    res = run(args.scene, backend=args.backend, comm=args.comm, ranks=args.ranks, schedule=args.schedule,
+              out=args.out, overwrite=args.overwrite, precision=args.precision, end_time=args.end_time,
+              max_steps=args.max_steps, dp=args.dp, progress=not args.quiet,
+              comm_options=_comm_options(args))
+    if res.out_dir is not None and not args.quiet and _is_root(res):
+        print(f"{res.steps} steps to t = {res.time:.4f} s in {res.wall_s:.1f} s "
+              f"({res.steps_per_s:.0f} steps/s after the first step; first step {res.compile_s:.2f} s); "
+              f"{res.particles} particles; output {res.out_dir}/output.h5", file=sys.stderr)
+    return 0
+
+
+def _is_root(res):
+    return res.out_dir is None or os.environ.get("PMI_RANK", "0") == "0"
+
+
+def cmd_bench(args) -> int:
+    from .bench import bench
+    out = bench(args.scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
+                ranks=args.ranks, schedule=args.schedule, precision=args.precision, dp=args.dp,
+                comm_options=_comm_options(args))
+    if out is not None:
+        print(json.dumps(out))
+    return 0
+
+
+def cmd_info(args) -> int:
+    import h5py
+    import networkx
+    import numba
+    import numpy
+    from . import __version__
+    from .registry import names
+    print(f"sphgraph {__version__}")
+    print(f"python {sys.version.split()[0]}, numpy {numpy.__version__}, numba {numba.__version__}, "
+          f"h5py {h5py.__version__} (HDF5 {h5py.version.hdf5_version}), networkx {networkx.__version__}")
+    print(f"numba threads: {numba.get_num_threads()} (threading layer: {numba.config.THREADING_LAYER})")
+    print(f"compute backends: {', '.join(names('compute'))}")
+    print(f"comm backends: {', '.join(names('comm'))}")
+    try:
+        import mpi4py
+        print(f"mpi4py {mpi4py.__version__}")
+    except ImportError:
+        print("mpi4py: not installed (pip install sphgraph[mpi])")
+    try:
+        from numba import cuda
+        print(f"cuda available: {cuda.is_available()}")
+    except Exception as e:  # noqa: BLE001 - informational only
+        print(f"cuda: unavailable ({e})")
+    from .schedule import shipped
+    print(f"schedules: {', '.join(shipped())}")
+    return 0
+
+
+def cmd_schedule(args) -> int:
+    from .schedule import Schedule
+    sched = Schedule.load(args.file if args.action == "validate" else args.name)
+    if args.action == "validate":
+        stages = [1, 2] if args.integrator is None else [1 if args.integrator == "verlet" else 2]
+        for st in stages:
+            for r in sorted({1, args.ranks}):
+                sched.validate(r, st, rebalance=bool(sched.rebalance))
+        print(f"{sched.source}: valid for 1 and {args.ranks} ranks, "
+              f"{' and '.join('Verlet' if s == 1 else 'Symplectic' for s in stages)}")
+        return 0
+    stages = 1 if args.integrator == "verlet" else 2
+    sched.validate(args.ranks, stages)
+    print(sched.describe(ranks=args.ranks, stages=stages, rank=min(args.rank, args.ranks - 1)))
+    if args.plot:
+        from .plots import plot_schedule_graph
+        path = plot_schedule_graph(sched, args.ranks, stages, args.plot)
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_trace(args) -> int:
+    from .trace import write_chrome_trace
+    path = write_chrome_trace(args.outdir, args.chrome)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_plot(args) -> int:
+    from . import plots
+    if args.what == "snapshot":
+        path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
+    elif args.what == "timeline":
+        path = plots.plot_timeline(args.outdir, path=args.output, steps=args.steps)
+    else:
+        path = plots.plot_breakdown(args.outdir, path=args.output)
+    print(f"wrote {path}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "bench": cmd_bench, "info": cmd_info, "schedule": cmd_schedule,
+            "trace": cmd_trace, "plot": cmd_plot}
+
+
+def main(argv=None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return COMMANDS[args.cmd](args)
+    except InputError as e:
+        for line in str(e).splitlines() or [type(e).__name__]:
+            print(f"sphgraph: error: {line}", file=sys.stderr)
+        return 2
+    except NumericalError as e:
+        print(f"sphgraph: numerical failure: {e}", file=sys.stderr)
+        return 1
+    except SphgraphError as e:
+        return _internal(e)
+    except KeyboardInterrupt:
+        print("sphgraph: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # noqa: BLE001 - exit 3 with the traceback in a log, never a bare crash
+        return _internal(e)
+
+
+def _internal(e) -> int:
+    fd, path = tempfile.mkstemp(prefix="sphgraph-error-", suffix=".log")
+    with os.fdopen(fd, "w") as f:
+        traceback.print_exc(file=f)
+    print(f"sphgraph: internal error: {type(e).__name__}: {e} (traceback in {path})", file=sys.stderr)
+    return 3
