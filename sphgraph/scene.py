@@ -79,20 +79,16 @@ class _Checker:
     def __init__(self, source: str):
         self.source = source
 
-    def error(self, key: str, form: str, value) -> InputError:
-        text = repr(value)
+    def error(self, key: str, form: str, value, literal: bool = False) -> InputError:
+        """The error for ``key``; ``literal`` shows ``value`` (a str) without repr quotes."""
+        text = value if literal else repr(value)
         if len(text) > 120:
             text = text[:117] + "..."
         return InputError(f"{self.source}: {key}: expected {form}, got {text}")
 
     def number(self, key, v, gt=None, ge=None, le=None) -> float:
-        form = "a number"
-        if gt is not None:
-            form += f" > {gt}"
-        if ge is not None:
-            form += f" >= {ge}"
-        if le is not None:
-            form += f" <= {le}"
+        conds = [f"{op} {b}" for op, b in ((">", gt), (">=", ge), ("<=", le)) if b is not None]
+        form = "a number" + (" " + " and ".join(conds) if conds else "")
         # bool is an int subclass in Python, but `true` is never a number in a scene
         if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
                 or (gt is not None and not v > gt) or (ge is not None and not v >= ge)
@@ -338,7 +334,8 @@ class Scene:
             if np.any(lo < self.domain_min - tol) or np.any(hi > self.domain_max + tol):
                 raise c.error(f"boundary[{i}]", f"particles inside the domain {_vlist(self.domain_min)}"
                               f" - {_vlist(self.domain_max)} (extend [domain])",
-                              f"particles spanning {_vlist(np.round(lo, 12))} - {_vlist(np.round(hi, 12))}")
+                              f"particles spanning {_vlist(np.round(lo, 12))} - {_vlist(np.round(hi, 12))}",
+                              literal=True)
         fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid]
         if geo.boxes_count(fboxes) == 0:
             raise c.error("fluid", f"boxes holding lattice points (spacing dp = {self.dp})", 0)
