@@ -65,6 +65,11 @@ _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
 _PHYS_VECTORS = ("gravity",)
 
 
+def _is_real(v) -> bool:
+    # bool is an int subclass in Python, but `true` is never a number in a scene
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
 class _Missing:
     def __repr__(self):
         return "nothing (key missing)"
@@ -89,15 +94,14 @@ class _Checker:
     def number(self, key, v, gt=None, ge=None, le=None) -> float:
         conds = [f"{op} {b}" for op, b in ((">", gt), (">=", ge), ("<=", le)) if b is not None]
         form = "a number" + (" " + " and ".join(conds) if conds else "")
-        # bool is an int subclass in Python, but `true` is never a number in a scene
-        if (not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v)
+        if (not _is_real(v) or not math.isfinite(v)
                 or (gt is not None and not v > gt) or (ge is not None and not v >= ge)
                 or (le is not None and not v <= le)):
             raise self.error(key, form, v)
         return float(v)
 
     def integer(self, key, v, ge=None) -> int:
-        if not isinstance(v, int) or isinstance(v, bool) or (ge is not None and v < ge):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or (ge is not None and v < ge):
             raise self.error(key, "an integer" + (f" >= {ge}" if ge is not None else ""), v)
         return int(v)
 
@@ -112,9 +116,10 @@ class _Checker:
         return v
 
     def vector(self, key, v, dim) -> np.ndarray:
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
         if (not isinstance(v, (list, tuple)) or len(v) != dim
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                           and math.isfinite(x) for x in v)):
+                or not all(_is_real(x) and math.isfinite(x) for x in v)):
             raise self.error(key, f"a list of {dim} numbers", v)
         return np.array(v, dtype=np.float64)
 
@@ -263,7 +268,11 @@ class Scene:
             d["dp"] = c.number("--dp", dp, gt=0)
         if end_time is not None:
             d["end_time"] = c.number("--end-time", end_time, gt=0)
-        d["physics"].update(physics_overrides)
+        for k, v in physics_overrides.items():
+            if v is None:  # back to the default (e.g. hswl=None: auto again)
+                d["physics"].pop(k, None)
+            else:
+                d["physics"][k] = v
         return self._validate(d, self.source, default_name=self.name, text=None)
 
     @classmethod
@@ -271,14 +280,15 @@ class Scene:
         c = _Checker(source)
         c.table("", d, TOP_KEYS)
         fmt = c.require("", d, "format")
-        if fmt != FORMAT_VERSION or isinstance(fmt, bool):
+        if type(fmt) is not int or fmt != FORMAT_VERSION:
             raise c.error("format", f"{FORMAT_VERSION} (the only scene format this version reads)", fmt)
         name = d.get("name", default_name)
         if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name):
             raise c.error("name", "a name of letters, digits, '.', '_' or '-'", name)
         dim = c.require("", d, "dim")
-        if dim not in (2, 3) or isinstance(dim, bool):
+        if not isinstance(dim, (int, np.integer)) or isinstance(dim, bool) or dim not in (2, 3):
             raise c.error("dim", "2 or 3", dim)
+        dim = int(dim)
         dp = c.number("dp", c.require("", d, "dp"), gt=0)
         end_time = c.number("end_time", c.require("", d, "end_time"), gt=0)
         out_dt = c.number("output_interval", d.get("output_interval", end_time / 20), gt=0)

@@ -106,6 +106,7 @@ def test_hswl_auto_is_fluid_height_and_feeds_c0():
     assert math.isclose(s.constants.c0, 20 * math.sqrt(9.81 * 2.0))
     s2 = s.with_overrides(hswl=1.5)
     assert s2.hswl == 1.5 and math.isclose(s2.constants.c0, 20 * math.sqrt(9.81 * 1.5))
+    assert s2.with_overrides(hswl=None).hswl == 2.0  # None: back to auto
     assert s.physics.gravity == (0.0, -9.81)
 
 
@@ -286,6 +287,8 @@ BAD = [
     ("format 2", _set("format", 2), "format", "got 2"),
     ("unknown top key", _set("dq", 0.1), "dq", "one of: format, name"),
     ("dim 4", _set("dim", 4), "dim", "expected 2 or 3"),
+    ("dim float", _set("dim", 2.0), "dim", "got 2.0"),
+    ("format float", _set("format", 1.0), "format", "got 1.0"),
     ("dp bool", _set("dp", True), "dp", "got True"),
     ("dp string", _set("dp", "0.01"), "dp", "a number > 0"),
     ("dp zero", _set("dp", 0), "dp", "got 0"),
@@ -360,6 +363,14 @@ def test_malformed_toml_and_missing_file(tmp_path):
         Scene.from_toml(p)
     with pytest.raises(InputError, match=r"nope\.toml: file: expected a readable"):
         Scene.from_toml(tmp_path / "nope.toml")
+
+
+def test_from_dict_accepts_numpy_values():
+    d = dam2d(dp=np.float64(0.01), domain={"min": np.zeros(2), "max": np.array([4.0, 3.5])})
+    d["boundary"][0]["layers"] = np.int64(1)
+    s = Scene.from_dict(d)
+    assert s.count_particles() == (20_000, 1_001)
+    assert "np." not in s.text and tomllib.loads(s.text)["dp"] == 0.01
 
 
 def test_from_dict_errors_name_the_source():
