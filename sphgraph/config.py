@@ -25,7 +25,8 @@ CELL_SIZES = ("2h", "h")
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
 P_VISC, P_VISC_BOUND, P_NU, P_DDT_KH, P_GX, P_GY, P_GZ, P_MASS_F, P_MASS_B = range(10, 19)
-P_CUBIC_A24, P_COUNT = 19, 20
+P_CUBIC_A24 = 19
+P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_COUNT = 20, 21, 22, 23, 24, 25  # series of (1+y)^(1/gamma) - 1; rho0/B
 # opt indices
 O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_COUNT = range(5)
 # opt values
@@ -116,6 +117,13 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     prm[P_MASS_F] = mass
     prm[P_MASS_B] = mass
     prm[P_CUBIC_A24] = 0.25 * aw                         # cubic: W = a24 (2-q)^3 for 1<q<2
+    # binomial series of (1+y)^k - 1, k = 1/gamma: exact to round-off for |y| < 1e-3
+    k = 1.0 / cfg.gamma
+    prm[P_HYD1] = k
+    prm[P_HYD2] = prm[P_HYD1] * (k - 1.0) / 2.0
+    prm[P_HYD3] = prm[P_HYD2] * (k - 2.0) / 3.0
+    prm[P_HYD4] = prm[P_HYD3] * (k - 3.0) / 4.0
+    prm[P_RHO0_B] = cfg.rho0 / B
     opt = np.zeros(O_COUNT, np.int64)
     opt[O_DIM] = dim
     opt[O_KERNEL] = KERNELS.index(cfg.kernel)

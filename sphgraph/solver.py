@@ -226,7 +226,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
             prog.update(sim.time, sim.step_count)
         wall = time.perf_counter() - t0
         if write_output and frames and sim.step_count > 0 and writer is not None \
-                and writer.frames()[-1][2] != sim.step_count:
+                and writer.frames[-1][2] != sim.step_count:
             save_frame()
     except NumericalError:
         prog.close()

@@ -9,9 +9,13 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2
-from sphgraph.physics.interact import bound_pair, fluid_pair
-from sphgraph.physics.eos import tait
+from sphgraph.physics import drop_stale_cache
+
+drop_stale_cache(__file__)  # before the cached kernels below are loaded
+
+from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
+from sphgraph.physics.eos import tait  # noqa: E402
+from sphgraph.physics.interact import bound_pair, fluid_pair  # noqa: E402
 
 
 @njit(parallel=True, fastmath=True, cache=True)

@@ -25,8 +25,8 @@ import math
 
 from numba import njit
 
-from ..config import (P_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_VISC, P_VISC_BOUND, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL)
+from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
+                      P_RHO0, P_VISC, P_VISC_BOUND, D_NONE, D_MOLTENI, D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
 
@@ -42,10 +42,11 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, p_a, p_b, mass_b,
     frx = fac * drx
     fry = fac * dry
     frz = fac * drz
-    ar = mass_b * (dvx * frx + dvy * fry + dvz * frz) * (rho_a / rho_b)
+    inv_rho_b = 1.0 / rho_b          # shared reciprocals: divisions dominate the pair cost
+    inv_r2e = 1.0 / (r2 + prm[P_ETA2])
+    ar = mass_b * (dvx * frx + dvy * fry + dvz * frz) * rho_a * inv_rho_b
     dot = dvx * drx + dvy * dry + dvz * drz
-    r2e = r2 + prm[P_ETA2]
-    dot_rr2 = dot / r2e
+    dot_rr2 = dot * inv_r2e
     coef = -(p_a + p_b) / (rho_a * rho_b) * mass_b
     if dot < 0.0:
         alpha = prm[P_VISC_BOUND] if b_bound else prm[P_VISC]
@@ -55,25 +56,25 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, p_a, p_b, mass_b,
     az = coef * frz
     rfr = drx * frx + dry * fry + drz * frz
     if laminar:
-        lam = mass_b * 4.0 * prm[P_NU] * rfr / ((rho_a + rho_b) * r2e)
+        lam = mass_b * 4.0 * prm[P_NU] * rfr * inv_r2e / (rho_a + rho_b)
         ax += lam * dvx
         ay += lam * dvy
         az += lam * dvz
     ddt = 0.0 * ar
     cancel = 0
-    if ddt_kind == D_MOLTENI:
+    if ddt_kind != D_NONE:
         if b_bound:
-            cancel = 1
+            cancel = 0 if ddt_kind == D_FOURTAKAS_FULL else 1
+        elif ddt_kind == D_MOLTENI:
+            ddt = prm[P_DDT_KH] * prm[P_C0] * (rho_a * inv_rho_b - 1.0) * inv_r2e * rfr * mass_b
         else:
-            ddt = prm[P_DDT_KH] * prm[P_C0] * (rho_a / rho_b - 1.0) / r2e * rfr * mass_b
-    elif ddt_kind == D_FOURTAKAS or ddt_kind == D_FOURTAKAS_FULL:
-        if b_bound:
-            cancel = 1 if ddt_kind == D_FOURTAKAS else 0
-        else:
-            # hydrostatic density difference rho^H_b - rho^H_a
-            dph = -prm[P_RHO0] * (prm[P_GX] * drx + prm[P_GY] * dry + prm[P_GZ] * drz)
-            drho_h = prm[P_RHO0] * ((1.0 + dph / prm[P_B]) ** (1.0 / prm[P_GAMMA]) - 1.0)
-            ddt = -prm[P_DDT_KH] * prm[P_C0] * ((rho_b - rho_a) - drho_h) / r2e * rfr * mass_b / rho_b
+            # hydrostatic density difference rho^H_b - rho^H_a from P^H_b - P^H_a = -rho0 g . r_ab
+            y = -(prm[P_GX] * drx + prm[P_GY] * dry + prm[P_GZ] * drz) * prm[P_RHO0_B]
+            if abs(y) < 1e-3:  # binomial series, exact to round-off: pow() per pair is slow
+                drho_h = prm[P_RHO0] * y * (prm[P_HYD1] + y * (prm[P_HYD2] + y * (prm[P_HYD3] + y * prm[P_HYD4])))
+            else:
+                drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
+            ddt = -prm[P_DDT_KH] * prm[P_C0] * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * mass_b * inv_rho_b
     return ax, ay, az, ar, ddt, cancel, prm[P_H] * dot_rr2
 
 
