@@ -242,11 +242,12 @@ def symplectic_predict(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_
 @njit(parallel=True, cache=True)
 def symplectic_correct(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_ref):
     """Symplectic corrector (DualSPHysics ComputeSymplecticCorr):
-    rho = rho0 (2 + e)/(2 - e), e = -ar/rho dt;  v = v0 + dt a;  r = r0 + dt (v + v0)/2."""
+    rho = rho0 (2 - e)/(2 + e), e = -ar/rho dt (Pade form of rho0 exp(ar/rho dt));
+    v = v0 + dt a;  r = r0 + dt (v + v0)/2."""
     dim = pos.shape[1]
     for i in prange(pos.shape[0]):
         e = -ar[i] / rho[i] * dt
-        r = rho0_[i] * (2.0 + e) / (2.0 - e)
+        r = rho0_[i] * (2.0 - e) / (2.0 + e)
         if kind[i] == 0:
             for d in range(dim):
                 v = vel0[i, d] + dt * ace[i, d]

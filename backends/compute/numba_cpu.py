@@ -114,6 +114,7 @@ class NumbaCPU(ComputeBackend):
             if state.stage0 is None or state.stage0[0].shape != p.pos.shape:
                 state.stage0 = (np.empty_like(p.pos), np.empty_like(p.vel), np.empty_like(p.rho))
             K.symplectic_predict(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
+            K.pressure_into(p.rho, state.prm, state.press)  # stage 2 forces see the predicted density
         else:
             K.symplectic_correct(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
 

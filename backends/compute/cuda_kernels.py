@@ -1,0 +1,645 @@
+"""numba.cuda kernels of the GPU backend (one thread per particle or per cell).
+
+The pair physics is not written here: `sphgraph.physics` holds it once, as plain
+`@njit` functions, and `retarget` turns each of them (and each kernel below) into a
+CUDA device function or kernel for one floating-point type:
+
+* the function's Python code is compiled again by the CUDA target, with every
+  `@njit` function it calls replaced by its own retargeted copy;
+* every float literal of the code (``0.5``, ``2.0``, ...) becomes a literal of the
+  run's type. numba types a bare literal as float64, so in a float32 run
+  ``0.5 * q`` would be computed in double precision (and ``1.0 / r`` with a
+  double division): the float32 copies here stay in float32.
+
+In numba's CUDA simulator (`NUMBA_ENABLE_CUDASIM=1`, CI) the same copies run as
+plain Python. Kernels must reach `cuda` as a module-level name (the simulator
+swaps it in each kernel's globals).
+
+Layout: structure of arrays. Positions are float64 (px, py, pz) for the update; the
+force loop reads positions relative to a per-rank reference point (rx, ry, rz) in
+the run's type, refreshed when the rows are sorted. 2D runs pass a one-element
+dummy for every z array.
+"""
+import math
+import os
+import types
+
+import numpy as np
+from numba import cuda
+from numba.core.dispatcher import Dispatcher
+
+from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
+from sphgraph.physics.eos import tait
+from sphgraph.physics.interact import bound_pair, fluid_pair
+
+SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") == "1"
+BLOCK = 256          # threads per block, element-wise kernels
+FORCE_BLOCK = 128    # threads per block, force kernels
+REDUCE_BLOCKS = 512  # blocks of the grid-stride reductions (dt, bounds/check)
+SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK * SCAN_ITEMS)
+
+
+# ------------------------------------------------------------------------------- retargeting
+def _cast_consts(code, ft):
+    out = []
+    for c in code.co_consts:
+        if type(c) is float:
+            c = ft(c)
+        elif isinstance(c, types.CodeType):
+            c = _cast_consts(c, ft)
+        out.append(c)
+    return code.replace(co_consts=tuple(out))
+
+
+def _clone(f, dtype, memo):
+    """A copy of the Python function `f` (or of an @njit dispatcher's py_func) whose
+    float literals are of `dtype` and whose @njit callees are CUDA device copies."""
+    f = getattr(f, "py_func", f)
+    code = f.__code__
+    if np.dtype(dtype) != np.float64:
+        code = _cast_consts(code, np.dtype(dtype).type)
+    g = dict(f.__globals__)
+    for name in code.co_names:
+        v = g.get(name)
+        if isinstance(v, Dispatcher):
+            g[name] = device_function(v, dtype, memo)
+    return types.FunctionType(code, g, f.__name__, f.__defaults__, f.__closure__)
+
+
+def device_function(f, dtype, memo=None):
+    """CUDA device copy of the @njit (or plain) function `f` for float type `dtype`."""
+    memo = {} if memo is None else memo
+    key = (getattr(f, "py_func", f), np.dtype(dtype).str)
+    if key not in memo:
+        fn = _clone(f, dtype, memo)
+        memo[key] = cuda.jit(device=True)(fn) if not SIMULATOR else cuda.jit(device=True)(fn)
+    return memo[key]
+
+
+def kernel(f, dtype, memo=None, fastmath=False):
+    """CUDA kernel copy of the plain function `f` for float type `dtype`."""
+    memo = {} if memo is None else memo
+    fn = _clone(f, dtype, memo)
+    if SIMULATOR:
+        return cuda.jit(fn)
+    return cuda.jit(fastmath=fastmath)(fn)
+
+
+# ------------------------------------------------------------------------------- kernels
+# Written as plain functions; `build(dtype)` turns them into kernels. Scalars passed
+# from the host are typed by the caller (floats of the run's type, int64 ints).
+
+def k_fill_i32(a, v):
+    i = cuda.grid(1)
+    if i < a.shape[0]:
+        a[i] = v
+
+
+def k_keys_hist(px, py, pz, n, dim, ox, oy, oz, inv_size, nx, ny, nz, sx, sy, sz, keys, counts):
+    """Cell key of each row (clamped to the grid, as sphgraph.cells.cell_keys) and a histogram."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    cx = int(math.floor((px[i] - ox) * inv_size))
+    cx = min(max(cx, 0), nx - 1)
+    cy = int(math.floor((py[i] - oy) * inv_size))
+    cy = min(max(cy, 0), ny - 1)
+    key = cx * sx + cy * sy
+    if dim == 3:
+        cz = int(math.floor((pz[i] - oz) * inv_size))
+        cz = min(max(cz, 0), nz - 1)
+        key += cz * sz
+    keys[i] = key
+    cuda.atomic.add(counts, key, 1)
+
+
+def k_scan_blocks(a, n, out, sums):
+    """Exclusive scan of a[0:n] within blocks of BLOCK*SCAN_ITEMS; block totals to sums."""
+    sh = cuda.shared.array(256, dtype=np.int64)
+    t = cuda.threadIdx.x
+    base = cuda.blockIdx.x * 2048 + t * 8
+    s = 0
+    for k in range(8):
+        j = base + k
+        if j < n:
+            s += a[j]
+    sh[t] = s
+    cuda.syncthreads()
+    off = 1
+    while off < 256:           # Hillis-Steele inclusive scan of the thread totals
+        v = sh[t - off] if t >= off else 0
+        cuda.syncthreads()
+        sh[t] += v
+        cuda.syncthreads()
+        off *= 2
+    run = sh[t] - s            # exclusive prefix of this thread
+    for k in range(8):
+        j = base + k
+        if j < n:
+            x = a[j]
+            out[j] = run
+            run += x
+    if t == 255:
+        sums[cuda.blockIdx.x] = sh[t]
+
+
+def k_scan_add(out, n, offs):
+    i = cuda.grid(1)
+    if i < n:
+        out[i] += offs[i // 2048]
+
+
+def k_set_last(out, ncells, n):
+    if cuda.grid(1) == 0:
+        out[ncells] = n
+
+
+def k_scatter(keys, n, fill, perm):
+    i = cuda.grid(1)
+    if i < n:
+        slot = cuda.atomic.add(fill, keys[i], 1)
+        perm[slot] = i
+
+
+def k_sort_cells(start, ncells, perm):
+    """Rows of each cell in increasing old order: the sort is then stable (as on the CPU)."""
+    c = cuda.grid(1)
+    if c >= ncells:
+        return
+    a = start[c]
+    b = start[c + 1]
+    for i in range(a + 1, b):
+        v = perm[i]
+        j = i - 1
+        while j >= a and perm[j] > v:
+            perm[j + 1] = perm[j]
+            j -= 1
+        perm[j + 1] = v
+
+
+def k_gather(src, perm, n, dst):
+    i = cuda.grid(1)
+    if i < n:
+        dst[i] = src[perm[i]]
+
+
+def k_gather_pos(src, perm, n, ref, dst, rel):
+    """Sorted float64 position and its copy relative to the rank's reference, run type."""
+    i = cuda.grid(1)
+    if i < n:
+        v = src[perm[i]]
+        dst[i] = v
+        rel[i] = v - ref
+
+
+def k_rel(src, n, ref, rel):
+    i = cuda.grid(1)
+    if i < n:
+        rel[i] = src[i] - ref
+
+
+def k_pressure(rho, n, prm, press):
+    i = cuda.grid(1)
+    if i < n:
+        press[i] = tait(rho[i], prm)
+
+
+def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dkind, n,
+             srx, sry, srz, svx, svy, svz, srho, spress, skind,
+             start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+             prm, dim, kernel_id, ddt_kind, laminar, final, gx, gy, gz,
+             ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
+    """Interactions of destination row i with the sources binned in a grid (as
+    cpu_kernels.forces: same loop order over cells and rows, same pair physics).
+
+    final=1: the only part of this stage, written reduced (gravity on fluid, density
+    diffusion unless cancelled) into ax/ay/az/ar/visc; final=0: a partial buffer.
+    """
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    empty = False
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        lo = 0
+        hi = 0
+        if a >= 0:
+            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
+            c = int(math.floor((x - o) * inv_size))
+            lo = max(c - reach, 0)
+            hi = min(c + reach, nk - 1)
+            if lo > hi:
+                empty = True
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+        else:
+            lo2 = lo
+            hi2 = hi
+    zero = drho[i] - drho[i]
+    axx = zero
+    ayy = zero
+    azz = zero
+    arr = zero
+    dd = zero
+    cc = 0
+    vmax = zero
+    xa = drx_[i]
+    ya = dry_[i]
+    za = drz_[i] if dim == 3 else zero
+    vxa = dvx_[i]
+    vya = dvy_[i]
+    vza = dvz_[i] if dim == 3 else zero
+    rho_a = drho[i]
+    p_a = dpress[i]
+    a_fluid = dkind[i] == 0
+    if not empty:
+        for c2 in range(lo2, hi2 + 1):
+            for c1 in range(lo1, hi1 + 1):
+                row = (c2 * n1 + c1) * n0
+                for j in range(start[row + lo0], start[row + hi0 + 1]):
+                    drx = xa - srx[j]
+                    dry = ya - sry[j]
+                    drz = (za - srz[j]) if dim == 3 else zero
+                    r2 = drx * drx + dry * dry + drz * drz
+                    if r2 > support2 or r2 < 1e-18:
+                        continue
+                    b_bound = skind[j] != 0
+                    if not a_fluid and b_bound:
+                        continue
+                    dvx = vxa - svx[j]
+                    dvy = vya - svy[j]
+                    dvz = (vza - svz[j]) if dim == 3 else zero
+                    if a_fluid:
+                        fx, fy, fz, fr, fd, fc, fv = fluid_pair(
+                            drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j], p_a, spress[j],
+                            mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
+                        axx += fx
+                        ayy += fy
+                        azz += fz
+                        arr += fr
+                        dd += fd
+                        cc |= fc
+                    else:
+                        fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
+                                            mf, prm, kernel_id)
+                        arr += fr
+                    if fv > vmax:
+                        vmax = fv
+    if final:
+        if a_fluid:
+            ax_[i] = axx + gx
+            ay_[i] = ayy + gy
+            if dim == 3:
+                az_[i] = azz + gz
+        else:
+            ax_[i] = zero * axx
+            ay_[i] = zero * ayy
+            if dim == 3:
+                az_[i] = zero * azz
+        ar_[i] = arr + (dd if cc == 0 else zero * dd)
+    else:
+        ax_[i] = axx
+        ay_[i] = ayy
+        if dim == 3:
+            az_[i] = azz
+        ar_[i] = arr
+        ddt_[i] = dd
+        cancel_[i] = cc
+    visc_[i] = vmax
+
+
+def k_reduce(nparts, n, dim, kind, gx, gy, gz,
+             x0, y0, z0, r0, d0, c0, v0, x1, y1, z1, r1, d1, c1, v1, x2, y2, z2, r2, d2, c2, v2,
+             ax_, ay_, az_, ar_, visc_):
+    """Partial buffers summed in their fixed order (interior, halo 1, halo 2), as
+    cpu_kernels.reduce_parts: gravity on fluid, diffusion unless any part cancelled it."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    zero = r0[i] - r0[i]
+    sx = zero + x0[i]
+    sy = zero + y0[i]
+    sz = zero
+    s = zero + r0[i]
+    dd = zero + d0[i]
+    cc = c0[i]
+    v = zero
+    if v0[i] > v:
+        v = v0[i]
+    if dim == 3:
+        sz = zero + z0[i]
+    if nparts > 1:
+        sx += x1[i]
+        sy += y1[i]
+        if dim == 3:
+            sz += z1[i]
+        s += r1[i]
+        dd += d1[i]
+        cc |= c1[i]
+        if v1[i] > v:
+            v = v1[i]
+    if nparts > 2:
+        sx += x2[i]
+        sy += y2[i]
+        if dim == 3:
+            sz += z2[i]
+        s += r2[i]
+        dd += d2[i]
+        cc |= c2[i]
+        if v2[i] > v:
+            v = v2[i]
+    if kind[i] == 0:
+        ax_[i] = sx + gx
+        ay_[i] = sy + gy
+        if dim == 3:
+            az_[i] = sz + gz
+    else:
+        ax_[i] = zero * sx
+        ay_[i] = zero * sy
+        if dim == 3:
+            az_[i] = zero * sz
+    ar_[i] = s + (dd if cc == 0 else zero * dd)
+    visc_[i] = v
+
+
+def k_dt_terms(ax, ay, az, vx, vy, vz, visc, kind, n, dim, out):
+    """max |a|^2 and |v|^2 over fluid rows, max visc over all rows: block maxima, then
+    one atomic per block into out[0:3] (zeroed by the caller)."""
+    sh = cuda.shared.array((3, 256), dtype=np.float64)
+    t = cuda.threadIdx.x
+    a2m = 0.0
+    v2m = 0.0
+    vm = 0.0
+    i = cuda.grid(1)
+    stride = cuda.gridsize(1)
+    while i < n:
+        if visc[i] > vm:
+            vm = visc[i]
+        if kind[i] == 0:
+            a2 = ax[i] * ax[i] + ay[i] * ay[i]
+            v2 = vx[i] * vx[i] + vy[i] * vy[i]
+            if dim == 3:
+                a2 += az[i] * az[i]
+                v2 += vz[i] * vz[i]
+            if a2 > a2m:
+                a2m = a2
+            if v2 > v2m:
+                v2m = v2
+        i += stride
+    sh[0, t] = a2m
+    sh[1, t] = v2m
+    sh[2, t] = vm
+    cuda.syncthreads()
+    s = 128
+    while s > 0:
+        if t < s:
+            for q in range(3):
+                if sh[q, t + s] > sh[q, t]:
+                    sh[q, t] = sh[q, t + s]
+        cuda.syncthreads()
+        s //= 2
+    if t == 0:
+        for q in range(3):
+            cuda.atomic.max(out, q, sh[q, 0])
+
+
+def k_check_bounds(px, py, pz, rho, kind, n, dim, lox, loy, loz, hix, hiy, hiz,
+                   rho_min, rho_max, bad, box):
+    """First bad row (as cpu_kernels.check_state: cause 1 NaN, 2 outside the domain,
+    3 density out of bounds) as min(row * 4 + cause) into bad[0] (set to a large value
+    by the caller), and the rows' bounding box (box[0:3] min, box[3:6] max, set to
+    +-inf by the caller) for the next grid."""
+    sh = cuda.shared.array((6, 256), dtype=np.float64)
+    t = cuda.threadIdx.x
+    mn0 = math.inf
+    mn1 = math.inf
+    mn2 = math.inf
+    mx0 = -math.inf
+    mx1 = -math.inf
+    mx2 = -math.inf
+    i = cuda.grid(1)
+    stride = cuda.gridsize(1)
+    while i < n:
+        x = px[i]
+        y = py[i]
+        z = pz[i] if dim == 3 else 0.0
+        r = rho[i]
+        cause = 0
+        if r != r:
+            cause = 1
+        if x != x or y != y or z != z:
+            cause = 1
+        elif cause == 0:
+            if x < lox or x > hix or y < loy or y > hiy:
+                cause = 2
+            if dim == 3 and (z < loz or z > hiz):
+                cause = 2
+        if cause == 0 and kind[i] == 0 and (r < rho_min or r > rho_max):
+            cause = 3
+        if cause:
+            cuda.atomic.min(bad, 0, i * 4 + cause)
+        mn0 = min(mn0, x)
+        mx0 = max(mx0, x)
+        mn1 = min(mn1, y)
+        mx1 = max(mx1, y)
+        mn2 = min(mn2, z)
+        mx2 = max(mx2, z)
+        i += stride
+    sh[0, t] = mn0
+    sh[1, t] = mn1
+    sh[2, t] = mn2
+    sh[3, t] = mx0
+    sh[4, t] = mx1
+    sh[5, t] = mx2
+    cuda.syncthreads()
+    s = 128
+    while s > 0:
+        if t < s:
+            for q in range(3):
+                if sh[q, t + s] < sh[q, t]:
+                    sh[q, t] = sh[q, t + s]
+            for q in range(3, 6):
+                if sh[q, t + s] > sh[q, t]:
+                    sh[q, t] = sh[q, t + s]
+        cuda.syncthreads()
+        s //= 2
+    if t == 0:
+        for q in range(3):
+            cuda.atomic.min(box, q, sh[q, 0])
+        for q in range(3, 6):
+            cuda.atomic.max(box, q, sh[q, 0])
+
+
+def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar,
+             n, dim, dt, euler, rho0):
+    """As cpu_kernels.verlet (DualSPHysics ComputeVerlet), Euler step when `euler`."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    dt2 = 2.0 * dt
+    dt205 = 0.5 * dt * dt
+    if euler:
+        rnew = rho[i] + dt * ar[i]
+    else:
+        rnew = rhom[i] + dt2 * ar[i]
+    rhom[i] = rho[i]
+    if kind[i] == 0:
+        v = vx[i]
+        px[i] += dt * v + dt205 * ax[i]
+        vx[i] = (v if euler else vxm[i]) + (dt if euler else dt2) * ax[i]
+        vxm[i] = v
+        v = vy[i]
+        py[i] += dt * v + dt205 * ay[i]
+        vy[i] = (v if euler else vym[i]) + (dt if euler else dt2) * ay[i]
+        vym[i] = v
+        if dim == 3:
+            v = vz[i]
+            pz[i] += dt * v + dt205 * az[i]
+            vz[i] = (v if euler else vzm[i]) + (dt if euler else dt2) * az[i]
+            vzm[i] = v
+        rho[i] = rnew
+    else:
+        rho[i] = rnew if rnew > rho0 else rho0
+
+
+def k_sym_predict(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
+                  n, dim, dt, rho_ref):
+    """As cpu_kernels.symplectic_predict (half step dt/2). The stage-start position is
+    not kept: the corrector advances the predicted one (see k_sym_correct)."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    h = 0.5 * dt
+    rho0_[i] = rho[i]
+    r = rho[i] + h * ar[i]
+    if kind[i] == 0:
+        vx0[i] = vx[i]
+        vy0[i] = vy[i]
+        px[i] += h * vx[i]
+        py[i] += h * vy[i]
+        vx[i] += h * ax[i]
+        vy[i] += h * ay[i]
+        if dim == 3:
+            vz0[i] = vz[i]
+            pz[i] += h * vz[i]
+            vz[i] += h * az[i]
+        rho[i] = r
+    else:
+        rho[i] = r if r > rho_ref else rho_ref
+
+
+def k_sym_correct(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
+                  n, dim, dt, rho_ref):
+    """As cpu_kernels.symplectic_correct: v = v0 + dt a, r = r0 + dt (v + v0)/2, written
+    as r = r_pred + dt v / 2 (r_pred = r0 + dt v0 / 2): equal up to round-off, and no
+    stage-start copy of the float64 positions (24 B per particle) is needed."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    e = -ar[i] / rho[i] * dt
+    r = rho0_[i] * (2.0 + e) / (2.0 - e)
+    if kind[i] == 0:
+        hd = 0.5 * dt
+        v = vx0[i] + dt * ax[i]
+        px[i] += hd * v
+        vx[i] = v
+        v = vy0[i] + dt * ay[i]
+        py[i] += hd * v
+        vy[i] = v
+        if dim == 3:
+            v = vz0[i] + dt * az[i]
+            pz[i] += hd * v
+            vz[i] = v
+        rho[i] = r
+    else:
+        rho[i] = r if r > rho_ref else rho_ref
+
+
+def k_count_pairs(dpx, dpy, dpz, drx_, dry_, drz_, n, srx, sry, srz,
+                  start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, support2, dim, counts):
+    """Pairs within 2h of each destination (DualSPHysics' count: from each side)."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        lo = 0
+        hi = 0
+        if a >= 0:
+            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
+            c = int(math.floor((x - o) * inv_size))
+            lo = max(c - reach, 0)
+            hi = min(c + reach, nk - 1)
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+        else:
+            lo2 = lo
+            hi2 = hi
+    m = 0
+    if lo0 <= hi0 and lo1 <= hi1 and lo2 <= hi2:
+        xa = drx_[i]
+        ya = dry_[i]
+        za = drz_[i] if dim == 3 else xa - xa
+        for c2 in range(lo2, hi2 + 1):
+            for c1 in range(lo1, hi1 + 1):
+                row = (c2 * n1 + c1) * n0
+                for j in range(start[row + lo0], start[row + hi0 + 1]):
+                    dx = xa - srx[j]
+                    dy = ya - sry[j]
+                    dz = (za - srz[j]) if dim == 3 else dx - dx
+                    r2 = dx * dx + dy * dy + dz * dz
+                    if r2 <= support2 and r2 >= 1e-18:
+                        m += 1
+    counts[i] = m
+
+
+_KERNELS = ("k_fill_i32", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
+            "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
+            "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs")
+_FAST = {"k_forces", "k_count_pairs"}
+_BUILT: dict = {}
+
+
+def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
+    """The kernels for float type `dtype` (cached). fastmath (default: on for float32)
+    applies to the force loop only."""
+    dt = np.dtype(dtype)
+    fm = (dt == np.float32) if fastmath is None else bool(fastmath)
+    key = (dt.str, fm)
+    if key not in _BUILT:
+        memo = {}
+        g = globals()
+        _BUILT[key] = types.SimpleNamespace(**{
+            name: kernel(g[name], dt, memo, fastmath=fm and name in _FAST) for name in _KERNELS})
+    return _BUILT[key]
+
+
+def blocks(n: int, block: int = BLOCK) -> int:
+    return max(1, (int(n) + block - 1) // block)
