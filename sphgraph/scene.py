@@ -491,8 +491,8 @@ class Scene:
         if self.hydrostatic:
             k = self.constants
             g = abs(float(k.gravity[self.vertical]))
-            depth = self.surface_level() - pos[nb:, self.vertical]
-            rho[nb:] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+            depth = np.maximum(self.surface_level() - pos[:, self.vertical], 0.0)
+            rho[:] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
         return Particles.create(np.arange(n, dtype=np.int64), kind, pos,
                                 np.zeros((n, self.dim)), rho, dtype=dtype)
 

@@ -124,7 +124,11 @@ def test_hydrostatic_initial_density():
     pressure = k.B * ((rho / cfg.rho0) ** cfg.gamma - 1)
     assert np.allclose(pressure, cfg.rho0 * 9.81 * (z_s - y), rtol=1e-9)
     assert np.all(rho > cfg.rho0)
-    assert np.all(p.rho[~fluid] == cfg.rho0)
+    # boundary particles below the surface start hydrostatic too, those above at rho0
+    yb = p.pos[~fluid, 1]
+    pb = k.B * ((p.rho[~fluid] / cfg.rho0) ** cfg.gamma - 1)
+    assert np.allclose(pb, cfg.rho0 * 9.81 * np.maximum(z_s - yb, 0), rtol=1e-9, atol=1e-6)
+    assert np.all(p.rho[~fluid][yb > z_s] == cfg.rho0)
     # density grows with depth
     order = np.argsort(y)
     assert np.all(np.diff(rho[order]) <= 1e-9)
