@@ -1,0 +1,485 @@
+"""Mock MPI: N ranks in one process, run by a deterministic discrete-event engine.
+
+Every rank has a virtual clock. The engine repeatedly picks the runnable rank
+with the smallest clock (ties: lowest rank) and runs its next task. A task is
+runnable unless it is a receive whose message has not been *sent* yet, or a
+collective that not every rank has reached. Then:
+
+  send        the payload is frozen (deep-copied) and posted with
+              arrival = post time + latency + bytes / bandwidth (+ random delay);
+  receive     completes at max(rank clock, arrival) + its own cost;
+  collective  (dt_allreduce) completes on every rank at max(arrival clocks) +
+              2 ceil(log2 N) latency + its cost; the value is the min over ranks.
+
+Durations: the cost model (`costmodel.CostModel`, per task kind a + b·particles
++ c·pairs) divided by `rank_speed[rank]` by default, or the body's measured wall
+time divided by `rank_speed[rank]` with `timing="wall"`.
+
+Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
+  rank_speed  list of relative throughputs (2 = twice as fast), default all 1
+  latency, bandwidth   network model (s, bytes/s)
+  delay       extra uniform random delay in [0, delay) s on every message (seeded)
+  reorder     True: extra random delays large enough to deliver messages of different
+              (source, tag) pairs out of order; within one pair MPI's non-overtaking
+              rule is kept (a message never arrives before an earlier one of its pair)
+  seed        random seed of delay / reorder
+  timing      "model" (default) or "wall"
+  mode        "execute" (real kernels) or "predict" (modelled costs, no task bodies)
+  costs       cost model: None (shipped fit), a dict {kind: [a, b, c]}, a TOML path
+
+When no rank can run and not all have finished, `DeadlockError` names what every
+rank waits on; the engine never hangs.
+"""
+from __future__ import annotations
+
+import copy
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from sphgraph.errors import DeadlockError, InputError
+from sphgraph.errors import SphgraphError as InternalError
+from sphgraph.registry import register
+
+from .base import CommBackend
+from .costmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
+                        pairs_per_particle, task_features)
+
+REORDER_WINDOW = 1.0e-3   # s of random extra delay when reorder=True and no larger delay is set
+COLLECTIVE_TIMEOUT = 300.0
+
+
+@dataclass
+class _Msg:
+    payload: object
+    nbytes: int
+    arrival: float
+    seq: int
+
+
+def payload_nbytes(payload) -> int:
+    """Bytes of the numpy arrays a payload carries (Halo, Particles, array, None)."""
+    if payload is None:
+        return 0
+    if isinstance(payload, np.ndarray):
+        return int(payload.nbytes)
+    if hasattr(payload, "__dict__"):
+        return sum(int(v.nbytes) for v in vars(payload).values() if isinstance(v, np.ndarray))
+    return 0
+
+
+def freeze(payload):
+    """A private deep copy: later changes by the sender never reach the receiver."""
+    return copy.deepcopy(payload)
+
+
+def _rows(payload) -> int:
+    if payload is None:
+        return 0
+    n = getattr(payload, "n", None)
+    return int(n) if n is not None else 0
+
+
+class _Collective:
+    """Value exchange among the N threads running one collective task."""
+
+    def __init__(self, n):
+        self.n = n
+        self.values = [None] * n
+        self.barrier = threading.Barrier(n, timeout=COLLECTIVE_TIMEOUT)
+
+    def exchange(self, rank, value) -> list:
+        if self.n == 1:
+            return [value]
+        self.values[rank] = value
+        self.barrier.wait()
+        out = list(self.values)
+        self.barrier.wait()
+        return out
+
+
+class MockEndpoint:
+    """What one simulated rank's tasks call (`ctx.comm`)."""
+
+    def __init__(self, engine, rank):
+        self.engine = engine
+        self.rank = rank
+        self.size = engine.n
+        self.task = None
+        self.inbox = {}       # (source, tag) -> deque of payloads the engine matched for this task
+        self.outbox = []      # (dest, tag, payload) posted during this task
+        self.collective = None
+        self.received_rows = 0
+
+    def isend(self, dest, tag, payload):
+        if not 0 <= dest < self.size or dest == self.rank:
+            raise InternalError(f"rank {self.rank}: isend to invalid rank {dest}")
+        self.outbox.append((dest, tag, freeze(payload)))
+
+    def recv(self, source, tag):
+        q = self.inbox.get((source, tag))
+        if q:
+            p = q.popleft()
+        else:  # an undeclared receive: only legal if the message is already posted
+            box = self.engine.mail.get((source, self.rank, tag))
+            if not box:
+                name = self.task.name if self.task is not None else "?"
+                raise DeadlockError(f"rank {self.rank} waits in {name} for a message from rank {source} "
+                                    f"(tag {tag}) that the task did not declare and nobody has sent")
+            m = box.popleft()
+            self.engine._late_arrival[self.rank] = max(self.engine._late_arrival[self.rank], m.arrival)
+            p = m.payload
+        self.received_rows += _rows(p)
+        return p
+
+    def _coll(self):
+        if self.collective is None:
+            name = self.task.name if self.task is not None else "?"
+            raise InternalError(f"rank {self.rank}: task {name} calls a collective but is not declared "
+                                f"collective")
+        return self.collective
+
+    def allreduce_min(self, x):
+        return min(self._coll().exchange(self.rank, x))
+
+    def allreduce(self, x, op="sum"):
+        vals = self._coll().exchange(self.rank, x)
+        return _reduce(vals, op)
+
+    def allgather(self, x) -> list:
+        return self._coll().exchange(self.rank, x)
+
+
+def _reduce(vals, op):
+    if op in ("min", min):
+        return min(vals)
+    if op in ("max", max):
+        return max(vals)
+    if op in ("sum", sum):
+        out = vals[0]
+        for v in vals[1:]:
+            out = out + v
+        return out
+    raise ValueError(f"unknown reduction {op!r}")
+
+
+class Engine:
+    """The discrete-event core, shared by execute mode and predict mode.
+
+    Clocks persist across steps (`run_*` calls): the virtual time of a run is
+    `max(engine.clock)` after its last step.
+    """
+
+    def __init__(self, n, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH, delay=0.0,
+                 reorder=False, seed=0):
+        self.n = n
+        self.latency = float(latency)
+        self.bandwidth = float(bandwidth)
+        self.delay = float(delay)
+        self.reorder = bool(reorder)
+        self.rng = np.random.default_rng(seed)
+        self.clock = [0.0] * n
+        self.mail: dict = {}            # (source, dest, tag) -> deque[_Msg] in send order
+        self._last_arrival: dict = {}   # (source, dest, tag) -> arrival of the latest message
+        self._seq = 0
+        self._late_arrival = [0.0] * n
+        self.messages = 0
+        self.bytes = 0
+
+    # -- messages ----------------------------------------------------------------------
+    def post(self, src, dest, tag, payload, nbytes, t_post):
+        arrival = t_post + self.latency + nbytes / self.bandwidth
+        extra = 0.0
+        if self.delay > 0:
+            extra += self.rng.uniform(0.0, self.delay)
+        if self.reorder:
+            extra += self.rng.uniform(0.0, max(self.delay, REORDER_WINDOW))
+        arrival += extra
+        key = (src, dest, tag)
+        arrival = max(arrival, self._last_arrival.get(key, -np.inf))   # non-overtaking in a pair
+        self._last_arrival[key] = arrival
+        self._seq += 1
+        self.mail.setdefault(key, deque()).append(_Msg(payload, nbytes, arrival, self._seq))
+        self.messages += 1
+        self.bytes += nbytes
+
+    def _missing(self, rank, task):
+        """The first declared receive of `task` whose message is not posted, or None."""
+        need: dict = {}
+        for m in task.recvs:
+            key = (rank + m.peer, rank, m.tag)
+            need[key] = need.get(key, 0) + 1
+            if len(self.mail.get(key, ())) < need[key]:
+                return m
+        return None
+
+    def _take(self, rank, task):
+        """Pop the task's declared messages: ({(source, tag): deque[payload]}, latest arrival)."""
+        inbox: dict = {}
+        latest = -np.inf
+        for m in task.recvs:
+            src = rank + m.peer
+            msg = self.mail[(src, rank, m.tag)].popleft()
+            latest = max(latest, msg.arrival)
+            inbox.setdefault((src, m.tag), deque()).append(msg.payload)
+        return inbox, latest
+
+    # -- the loop ----------------------------------------------------------------------
+    def _loop(self, programs: dict, run_task, run_collective, record):
+        ranks = sorted(programs)
+        if ranks != list(range(self.n)):
+            raise InternalError(f"mock engine: expected programs of ranks 0..{self.n - 1}, got {ranks}")
+        pc = {r: 0 for r in ranks}
+        while True:
+            pending = [r for r in ranks if pc[r] < len(programs[r])]
+            if not pending:
+                return
+            # collectives: run when every rank stands at the same one
+            heads = {r: programs[r][pc[r]] for r in pending}
+            if len(pending) == self.n and all(t.collective for t in heads.values()) \
+                    and len({t.name for t in heads.values()}) == 1:
+                run_collective(ranks, heads, record)
+                for r in ranks:
+                    pc[r] += 1
+                continue
+            runnable = [r for r in pending if not heads[r].collective and self._missing(r, heads[r]) is None]
+            if not runnable:
+                raise DeadlockError(self._deadlock_report(ranks, pending, heads))
+            r = min(runnable, key=lambda q: (self.clock[q], q))
+            run_task(r, heads[r], record)
+            pc[r] += 1
+
+    def _deadlock_report(self, ranks, pending, heads) -> str:
+        lines = ["every rank waits (deadlock):"]
+        for r in ranks:
+            if r not in heads:
+                lines.append(f"rank {r} has finished its step")
+                continue
+            t = heads[r]
+            if t.collective:
+                absent = [q for q in ranks if q not in heads or heads[q].name != t.name]
+                lines.append(f"rank {r} waits in {t.name} for every rank (rank(s) "
+                             f"{', '.join(map(str, absent))} not there)")
+            else:
+                m = self._missing(r, t)
+                lines.append(f"rank {r} waits in {t.name} for a message from rank {r + m.peer} (tag {m.tag})")
+        return "\n".join(lines)
+
+    # -- predict: modelled costs, no bodies --------------------------------------------
+    def run_modelled(self, programs, cost, message_bytes, record):
+        """`cost(rank, task)` -> seconds; `message_bytes(rank, task, msg)` -> bytes of a send."""
+        def run_task(r, task, rec):
+            start = self.clock[r]
+            latest = -np.inf
+            if task.recvs:
+                _, latest = self._take(r, task)
+            end = max(start, latest) + cost(r, task)
+            for m in task.sends:
+                self.post(r, r + m.peer, m.tag, None, message_bytes(r, task, m), end)
+            self.clock[r] = end
+            rec(r, task, start, end)
+
+        def run_collective(ranks, heads, rec):
+            t_all = max(self.clock[r] for r in ranks) + allreduce_seconds(self.n, self.latency)
+            for r in ranks:
+                end = t_all + cost(r, heads[r])
+                rec(r, heads[r], self.clock[r], end)
+                self.clock[r] = end
+
+        self._loop(programs, run_task, run_collective, record)
+
+
+@register("comm", "mock")
+class MockComm(CommBackend):
+    """`--comm mock --ranks N`: N ranks in this process (see module doc)."""
+
+    virtual_time = True
+
+    def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
+                 delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None, **options):
+        if options:
+            raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
+                             "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs")
+        super().__init__(ranks)
+        if timing not in ("model", "wall"):
+            raise InputError(f"--comm mock: timing: expected 'model' or 'wall', got {timing!r}")
+        if mode not in ("execute", "predict"):
+            raise InputError(f"--comm mock: mode: expected 'execute' or 'predict', got {mode!r}")
+        speed = [1.0] * ranks if rank_speed is None else [float(s) for s in rank_speed]
+        if len(speed) != ranks or any(not s > 0 for s in speed):
+            raise InputError(f"--comm mock: rank_speed: expected {ranks} numbers > 0, got {rank_speed!r}")
+        for key, v in (("latency", latency), ("bandwidth", bandwidth), ("delay", delay)):
+            if not isinstance(v, (int, float)) or v < 0 or (key == "bandwidth" and v == 0):
+                raise InputError(f"--comm mock: {key}: expected a number >= 0, got {v!r}")
+        self.rank_speed = speed
+        self.timing = timing
+        self.mode = mode
+        self.costs = CostModel.load(costs)
+        self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed)
+        self.endpoints = [MockEndpoint(self.engine, r) for r in range(ranks)]
+        self._k = {}
+
+    @property
+    def local_ranks(self) -> list[int]:
+        return list(range(self.size))
+
+    def endpoint(self, rank: int):
+        return self.endpoints[rank]
+
+    def gather_rows(self, per_rank: dict):
+        return [per_rank[r] for r in range(self.size)]
+
+    def allreduce(self, value, op):
+        return value      # every rank is local: the caller's value is already global
+
+    def barrier(self):
+        pass
+
+    def clock(self) -> float:
+        return max(self.engine.clock)
+
+    # -- durations ---------------------------------------------------------------------
+    def _pairs_k(self, ctx):
+        key = id(ctx.state.consts)
+        if key not in self._k:
+            st = ctx.state
+            self._k[key] = pairs_per_particle(st.consts, st.consts.dim, st.consts.dp)
+        return self._k[key]
+
+    def _model_seconds(self, ctx, task, moved_rows: int) -> float:
+        label = task.label
+        halo_rows = 0
+        if label in ("forces_halo_1", "forces_halo_2"):
+            h = ctx.state.halos.get(int(label[-1]))
+            halo_rows = 0 if h is None else h.n
+        p, q = task_features(label, ctx.state.particles.n, halo_rows, moved_rows, self._pairs_k(ctx))
+        return self.costs.seconds(label, p, q, self.rank_speed[ctx.rank])
+
+    # -- execute -----------------------------------------------------------------------
+    def execute(self, jobs, record) -> None:
+        if self.mode == "predict":
+            return self._predict_step(jobs, record)
+        eng = self.engine
+        ctxs = {ctx.rank: ctx for ctx, _ in jobs}
+        programs = {ctx.rank: prog for ctx, prog in jobs}
+        wall = self.timing == "wall"
+
+        def body(r, task):
+            ep = self.endpoints[r]
+            ep.task, ep.outbox, ep.received_rows = task, [], 0
+            eng._late_arrival[r] = -np.inf
+            t0 = time.perf_counter()
+            if task.fn is not None:
+                task.fn(ctxs[r], task)
+            w = time.perf_counter() - t0
+            moved = ep.received_rows + sum(_rows(p) for _, _, p in ep.outbox)
+            dur = w / self.rank_speed[r] if wall else self._model_seconds(ctxs[r], task, moved)
+            return dur
+
+        def run_task(r, task, rec):
+            ep = self.endpoints[r]
+            start = eng.clock[r]
+            latest = -np.inf
+            if task.recvs:
+                ep.inbox, latest = eng._take(r, task)
+            dur = body(r, task)
+            ep.inbox = {}
+            end = max(start, latest, eng._late_arrival[r]) + dur
+            for dest, tag, payload in ep.outbox:
+                eng.post(r, dest, tag, payload, payload_nbytes(payload), end)
+            ep.outbox, ep.task = [], None
+            eng.clock[r] = end
+            rec(r, task, start, end)
+
+        def run_collective(ranks, heads, rec):
+            coll = _Collective(len(ranks))
+            durs, errors = {}, {}
+
+            def go(r):
+                ep = self.endpoints[r]
+                ep.collective = coll
+                try:
+                    durs[r] = body(r, heads[r])
+                except BaseException as e:   # noqa: BLE001 - re-raised in the engine's thread
+                    errors[r] = e
+                    coll.barrier.abort()
+                finally:
+                    ep.collective = None
+            if len(ranks) == 1:
+                go(ranks[0])
+            else:
+                threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in ranks]
+                for t in threads:
+                    t.start()
+                for t in threads:
+                    t.join()
+            if errors:
+                first = min(errors)
+                e = errors[first]
+                if isinstance(e, threading.BrokenBarrierError):
+                    e = next((x for x in errors.values() if not isinstance(x, threading.BrokenBarrierError)), e)
+                raise e
+            t_all = max(eng.clock[r] for r in ranks) + allreduce_seconds(self.n_ranks, eng.latency)
+            for r in ranks:
+                end = t_all + durs[r]
+                rec(r, heads[r], eng.clock[r], end)
+                for dest, tag, payload in self.endpoints[r].outbox:
+                    eng.post(r, dest, tag, payload, payload_nbytes(payload), end)
+                self.endpoints[r].outbox, self.endpoints[r].task = [], None
+                eng.clock[r] = end
+
+        eng._loop(programs, run_task, run_collective, record)
+
+    @property
+    def n_ranks(self):
+        return self.size
+
+    # -- predict mode inside a Simulation: real states and programs, no bodies ----------
+    def _predict_step(self, jobs, record):
+        ctxs = {ctx.rank: ctx for ctx, _ in jobs}
+        programs = {ctx.rank: prog for ctx, prog in jobs}
+
+        def edge_rows(r, d):
+            ctx = ctxs[r]
+            dom = ctx.domain
+            x = ctx.state.particles.pos[:, dom.axis]
+            return int(np.count_nonzero(x < dom.lo + dom.reach) if d < 0 else
+                       np.count_nonzero(x >= dom.hi - dom.reach))
+
+        dim = next(iter(ctxs.values())).state.particles.dim
+        from .costmodel import HALO_ROW_BYTES, ROW_BYTES
+
+        def cost(r, task):
+            lab = task.label
+            moved = 0
+            if lab == "send_edges":
+                moved = sum(edge_rows(r, m.peer) for m in task.sends)
+            elif lab in ("recv_halo_1", "forces_halo_1"):
+                moved = edge_rows(r - 1, 1)
+            elif lab in ("recv_halo_2", "forces_halo_2"):
+                moved = edge_rows(r + 1, -1)
+            ctx = ctxs[r]
+            p, q = task_features(lab, ctx.state.particles.n, moved, moved, self._pairs_k(ctx))
+            return self.costs.seconds(lab, p, q, self.rank_speed[r])
+
+        def message_bytes(r, task, m):
+            if task.label == "send_edges":
+                return edge_rows(r, m.peer) * HALO_ROW_BYTES[dim]
+            return ROW_BYTES[dim]
+
+        self.engine.run_modelled(programs, cost, message_bytes, record)
+
+
+def run_programs(programs: dict, contexts: dict, comm: MockComm | None = None, record=None):
+    """Run per-rank task lists through the engine directly (no schedule validation).
+
+    For tests and experiments: `programs` {rank: [Task]}, `contexts` {rank: RankContext}.
+    """
+    comm = comm or MockComm(ranks=len(programs))
+    recs = []
+    comm.execute([(contexts[r], programs[r]) for r in sorted(programs)],
+                 record or (lambda r, t, a, b: recs.append((r, t.name, a, b))))
+    return recs
