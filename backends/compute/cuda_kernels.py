@@ -89,10 +89,16 @@ def kernel(f, dtype, memo=None, fastmath=False):
 # Written as plain functions; `build(dtype)` turns them into kernels. Scalars passed
 # from the host are typed by the caller (floats of the run's type, int64 ints).
 
-def k_fill_i32(a, v):
+def k_fill(a, n, v):
     i = cuda.grid(1)
-    if i < a.shape[0]:
+    if i < n:
         a[i] = v
+
+
+def k_copy(src, n, dst):
+    i = cuda.grid(1)
+    if i < n:
+        dst[i] = src[i]
 
 
 def k_keys_hist(px, py, pz, n, dim, ox, oy, oz, inv_size, nx, ny, nz, sx, sy, sz, keys, counts):
@@ -545,14 +551,15 @@ def k_sym_predict(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, a
 
 def k_sym_correct(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
                   n, dim, dt, rho_ref):
-    """As cpu_kernels.symplectic_correct: v = v0 + dt a, r = r0 + dt (v + v0)/2, written
+    """As cpu_kernels.symplectic_correct: rho = rho0 (2 - e)/(2 + e), e = -ar/rho dt (Pade
+    form of rho0 exp(ar/rho dt)); v = v0 + dt a, r = r0 + dt (v + v0)/2, written
     as r = r_pred + dt v / 2 (r_pred = r0 + dt v0 / 2): equal up to round-off, and no
     stage-start copy of the float64 positions (24 B per particle) is needed."""
     i = cuda.grid(1)
     if i >= n:
         return
     e = -ar[i] / rho[i] * dt
-    r = rho0_[i] * (2.0 + e) / (2.0 - e)
+    r = rho0_[i] * (2.0 - e) / (2.0 + e)
     if kind[i] == 0:
         hd = 0.5 * dt
         v = vx0[i] + dt * ax[i]
@@ -620,7 +627,7 @@ def k_count_pairs(dpx, dpy, dpz, drx_, dry_, drz_, n, srx, sry, srz,
     counts[i] = m
 
 
-_KERNELS = ("k_fill_i32", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
+_KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
             "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
             "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs")
 _FAST = {"k_forces", "k_count_pairs"}
