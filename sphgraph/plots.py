@@ -15,7 +15,7 @@ import numpy as np
 from .errors import InputError
 from .io import read_attrs, read_frame
 
-__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot"]
+__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot", "plot_timeline", "plot_breakdown", "plot_schedule_graph"]
 
 
 # ---------------------------------------------------------------------- shared helpers
@@ -185,4 +185,113 @@ def plot_snapshot(out_dir, time: float | None = None, field: str = "pressure",
 
     if path is None:
         path = os.path.join(os.fspath(out_dir), f"snapshot_t{fr['time']:.3f}_{field}.png")
+    return _save(fig, path)
+
+
+# ---------------------------------------------------------------------- task timings
+def _kind_colors(labels):
+    from matplotlib import colormaps
+    cmap = colormaps["tab20"]
+    from .graph.kinds import TaskKind
+    known = TaskKind.labels()
+    return {lab: cmap((known.index(lab) if lab in known else len(known) + i) % 20)
+            for i, lab in enumerate(labels)}
+
+
+def plot_timeline(out_dir, path=None, steps="last3") -> str:
+    """Per-rank Gantt chart of the tasks (the seed paper's Fig. 2): one row per rank and lane."""
+    from .graph.kinds import LANES
+    from .trace import load_timing
+    t = load_timing(out_dir)
+    path = _check_path(path or os.path.join(os.fspath(out_dir), "timeline.png"), "timeline")
+    step = np.asarray(t["step"])
+    if steps == "all":
+        sel = np.ones(len(step), bool)
+    elif steps.startswith("last"):
+        k = int(steps[4:] or 3)
+        sel = step > step.max() - k
+    else:
+        try:
+            a, b = (int(x) for x in steps.split(":"))
+        except ValueError:
+            raise InputError(f"--steps: expected 'all', 'lastN' or A:B, got {steps!r}") from None
+        sel = (step >= a) & (step < b)
+    ranks = np.asarray(t["rank"])[sel]
+    names = [str(x).split("@")[0] for x in np.asarray(t["task"])[sel]]
+    lanes = [str(x) for x in np.asarray(t["lane"])[sel]]
+    start, end = np.asarray(t["start"])[sel], np.asarray(t["end"])[sel]
+    rows = sorted({(int(r), ln) for r, ln in zip(ranks, lanes)}, key=lambda x: (x[0], LANES.index(x[1]) if x[1] in LANES else 9))
+    row_of = {rl: i for i, rl in enumerate(rows)}
+    colors = _kind_colors(sorted(set(names)))
+    fig = _new_figure((10.0, 1.0 + 0.45 * len(rows)))
+    ax = fig.add_subplot()
+    t0 = start.min() if len(start) else 0.0
+    for r, ln, nm, a, b in zip(ranks, lanes, names, start, end):
+        ax.barh(row_of[(int(r), ln)], (b - a) * 1e3, left=(a - t0) * 1e3, color=colors[nm], edgecolor="none")
+    ax.set_yticks(range(len(rows)), [f"rank {r} {ln}" for r, ln in rows])
+    ax.invert_yaxis()
+    attrs = read_attrs(out_dir)
+    clock = "virtual ms (mock MPI)" if attrs.get("comm") == "mock" else "ms"
+    ax.set_xlabel(f"time [{clock}]")
+    ax.set_title(f"task timeline, schedule {attrs.get('schedule', '?')}")
+    from matplotlib.patches import Patch
+    ax.legend(handles=[Patch(color=c, label=n) for n, c in colors.items()], fontsize=7,
+              loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return _save(fig, path)
+
+
+def plot_breakdown(out_dir, path=None) -> str:
+    """Share of each task kind per rank (the seed paper's Figs. 11-12), stacked bars."""
+    from .trace import load_timing, seconds_by_rank_and_kind
+    t = load_timing(out_dir)
+    path = _check_path(path or os.path.join(os.fspath(out_dir), "breakdown.png"), "breakdown")
+    per = seconds_by_rank_and_kind(t)
+    kinds = sorted({k for d in per.values() for k in d})
+    colors = _kind_colors(kinds)
+    fig = _new_figure((8.0, 4.5))
+    ax = fig.add_subplot()
+    ranks = sorted(per)
+    bottom = np.zeros(len(ranks))
+    for k in kinds:
+        tot = np.array([sum(per[r].values()) for r in ranks])
+        share = np.array([per[r].get(k, 0.0) for r in ranks]) / np.maximum(tot, 1e-300) * 100
+        ax.bar([str(r) for r in ranks], share, bottom=bottom, color=colors[k], label=k)
+        bottom += share
+    ax.set_xlabel("rank")
+    ax.set_ylabel("share of task time [%]")
+    ax.set_title("time breakdown by task")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return _save(fig, path)
+
+
+def plot_schedule_graph(schedule, ranks: int, stages: int, path) -> str:
+    """The multi-rank step graph: one column of tasks per rank, message edges across."""
+    from .graph.build import multi_rank_graph
+    path = _check_path(path, "--plot")
+    programs = {r: schedule.program(r, ranks, stages) for r in range(ranks)}
+    g = multi_rank_graph(programs)
+    # one row per task name (rows of the fullest program), so ranks line up and the
+    # collective, drawn once in the middle, has its row to itself
+    rows = [t.name for t in max(programs.values(), key=len)]
+    pos = {}
+    for r, prog in programs.items():
+        for t in prog:
+            n = ("all", t.name) if t.collective else (r, t.name)
+            pos[n] = ((ranks - 1) / 2.0 if t.collective else r, -rows.index(t.name))
+    fig = _new_figure((3.0 + 2.6 * ranks, 1.0 + 0.42 * max(len(p) for p in programs.values())))
+    ax = fig.add_subplot()
+    for u, v, d in g.edges(data=True):
+        (x0, y0), (x1, y1) = pos[u], pos[v]
+        msg = d.get("kind") == "message"
+        ax.annotate("", xy=(x1, y1), xytext=(x0, y0),
+                    arrowprops={"arrowstyle": "->", "color": "tab:red" if msg else "0.6",
+                                "lw": 1.0, "connectionstyle": "arc3,rad=0.15" if msg else "arc3"})
+    for n, (x, y) in pos.items():
+        ax.text(x, y, n[1], ha="center", va="center", fontsize=7,
+                bbox={"boxstyle": "round", "fc": "lightyellow" if n[0] == "all" else "white", "ec": "0.5"})
+    ax.set_xlim(-0.7, ranks - 0.3)
+    ax.set_ylim(-max(len(p) for p in programs.values()), 1)  # text and arrows do not autoscale
+    ax.set_xticks(range(ranks), [f"rank {r}" for r in range(ranks)])
+    ax.set_yticks([])
+    ax.set_title(f"schedule {schedule.name}: program order (grey), messages (red)")
     return _save(fig, path)

@@ -30,6 +30,15 @@ class RankContext:
     balancer: object = None
     scene: object = None
 
+    def force_buffer(self, name: str):
+        """A zeroed partial force buffer `name` for a user task that accumulates into
+        `forces@s`; it is summed after the interior and halo parts, in name order."""
+        from .state import ForceBuffers
+        p = self.state.particles
+        buf = ForceBuffers.empty(p.n, p.dim, self.state.dtype)
+        self.state.parts[name] = buf
+        return buf
+
 
 @dataclass
 class TaskTimes:

@@ -90,7 +90,8 @@ class NumbaCPU(ComputeBackend):
     def reduce_forces(self, state, stage: int) -> None:
         if state.reduced_stage == (state.step, stage):
             return
-        bufs = [state.parts[k] for k in PARTS if k in state.parts and state.parts[k].ar.shape[0] == state.particles.n]
+        names = [k for k in PARTS if k in state.parts] + sorted(k for k in state.parts if k not in PARTS)
+        bufs = [state.parts[k] for k in names if state.parts[k].ar.shape[0] == state.particles.n]
         K.reduce_parts(tuple(b.ace for b in bufs), tuple(b.ar for b in bufs),
                        tuple(b.ddt for b in bufs), tuple(b.cancel for b in bufs),
                        tuple(b.visc for b in bufs), state.particles.kind,
