@@ -351,11 +351,14 @@ class MockComm(CommBackend):
 
     def _model_seconds(self, ctx, task, moved_rows: int) -> float:
         label = task.label
+        st = ctx.state
+        if getattr(st, "particles", None) is None:   # a bare context (tests, user experiments)
+            return self.costs.seconds(label, moved_rows, 0.0, self.rank_speed[ctx.rank])
         halo_rows = 0
         if label in ("forces_halo_1", "forces_halo_2"):
-            h = ctx.state.halos.get(int(label[-1]))
+            h = st.halos.get(int(label[-1]))
             halo_rows = 0 if h is None else h.n
-        p, q = task_features(label, ctx.state.particles.n, halo_rows, moved_rows, self._pairs_k(ctx))
+        p, q = task_features(label, st.particles.n, halo_rows, moved_rows, self._pairs_k(ctx))
         return self.costs.seconds(label, p, q, self.rank_speed[ctx.rank])
 
     # -- execute -----------------------------------------------------------------------
