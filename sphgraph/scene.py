@@ -523,7 +523,7 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
         else:  # float, or a number that defaults to None (auto)
             bound, strict = _PHYS_BOUNDS.get(k, (None, False))
             vals[k] = c.number(key, v, gt=bound if strict else None,
-                               ge=None if strict else bound, le=1 if k == "cfl" else None)
+                               ge=None if strict else bound, le=10 if k == "cfl" else None)
     cfg = PhysicsConfig(**vals)
     if cfg.rho_max <= cfg.rho_min:
         raise c.error("physics.rho_max", f"a number > physics.rho_min = {cfg.rho_min}", cfg.rho_max)

@@ -329,7 +329,7 @@ BAD = [
     ("cell_size enum", _set("physics.cell_size", "3h"), "physics.cell_size", '"2h", "h"'),
     ("coefh negative", _set("physics.coefh", -1.0), "physics.coefh", "a number > 0"),
     ("visc negative", _set("physics.visc_alpha", -0.1), "physics.visc_alpha", "a number >= 0"),
-    ("cfl > 1", _set("physics.cfl", 2.0), "physics.cfl", "<= 1"),
+    ("cfl > 10", _set("physics.cfl", 20.0), "physics.cfl", "<= 10"),
     ("verlet every 0", _set("physics.verlet_euler_every", 0), "physics.verlet_euler_every", ">= 1"),
     ("gravity length", _set("physics.gravity", [0, 0, -9.81]), "physics.gravity", "a list of 2 numbers"),
     ("rho bounds", _set("physics.rho_max", 600.0), "physics.rho_max", "> physics.rho_min"),

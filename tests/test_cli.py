@@ -1,0 +1,169 @@
+"""Command line contracts: exit codes, one-line errors, nothing written on bad input,
+blow-up reported with step and particle id, output readable (also by VTK's XDMF reader)."""
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from sphgraph.io import list_frames, read_attrs, read_frame, read_timing
+
+from conftest import example
+
+GOOD = """format = 1
+name = "tiny"
+dim = 2
+dp = 0.05
+end_time = 0.02
+output_interval = 0.01
+[domain]
+min = [0.0, 0.0]
+max = [1.0, 1.0]
+[[fluid]]
+type = "box"
+min = [0.0, 0.0]
+max = [0.3, 0.4]
+[[boundary]]
+type = "tank"
+min = [0.0, 0.0]
+max = [1.0, 0.8]
+"""
+
+
+def sph(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "sphgraph", *map(str, args)], capture_output=True,
+                          text=True, cwd=cwd, timeout=300)
+
+
+def test_run_writes_the_output_contract(tmp_path):
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD)
+    r = sph("run", scene, "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    frames = list_frames(tmp_path / "o")
+    assert frames[0][1] == 0.0 and frames[0][2] == 0 and len(frames) >= 3
+    a = read_frame(tmp_path / "o", index=0)
+    assert a["id"].dtype == np.int64 and a["kind"].dtype == np.int8
+    assert np.all(np.diff(a["id"]) > 0)
+    assert a["position"].shape == (len(a["id"]), 2)
+    attrs = read_attrs(tmp_path / "o")
+    for k in ("scene", "version", "backend", "comm", "ranks", "schedule", "precision", "dim", "dp", "h"):
+        assert k in attrs, k
+    assert attrs["scene"] == GOOD
+    t = read_timing(tmp_path / "o")
+    assert {"build_cells", "forces_interior@1", "integrate@1"} <= set(map(str, t["task"]))
+    with h5py.File(tmp_path / "o" / "output.h5") as f:
+        assert "000000" in f["frames"] and f["frames/000001"].attrs["time"] > 0
+    # refuse to overwrite without --overwrite
+    r2 = sph("run", scene, "--out", tmp_path / "o")
+    assert r2.returncode == 2 and "--overwrite" in r2.stderr
+    assert sph("run", scene, "--out", tmp_path / "o", "--overwrite", "--max-steps", "2").returncode == 0
+
+
+def test_xdmf_opens_in_vtk(tmp_path):
+    vtk = pytest.importorskip("vtk")
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD)
+    assert sph("run", scene, "--out", tmp_path / "o", "--quiet").returncode == 0
+    reader = vtk.vtkXdmfReader()
+    reader.SetFileName(str(tmp_path / "o" / "output.xmf"))
+    reader.UpdateInformation()
+    reader.Update()
+    out = reader.GetOutputDataObject(0)
+    block = out.GetBlock(0) if out.IsA("vtkMultiBlockDataSet") else out
+    a = read_frame(tmp_path / "o", index=0)
+    assert block.GetNumberOfPoints() == len(a["id"])
+    pd = block.GetPointData()
+    for name in ("density", "pressure", "velocity"):
+        assert pd.GetArray(name) is not None, name
+
+
+BAD = [
+    ("malformed TOML", GOOD.replace('dim = 2', 'dim = = 2'), "tiny.toml"),
+    ("unknown key", GOOD.replace('dim = 2', 'dim = 2\ncolour = "blue"'), "colour"),
+    ("wrong type", GOOD.replace('dp = 0.05', 'dp = "fine"'), "dp"),
+    ("dp <= 0", GOOD.replace('dp = 0.05', 'dp = -0.01'), "dp"),
+    ("fluid outside the domain", GOOD.replace('max = [0.3, 0.4]', 'max = [0.3, 1.4]'), "fluid[0]"),
+    ("bad kernel", GOOD + '[physics]\nkernel = "gauss"\n', "physics.kernel"),
+]
+
+
+@pytest.mark.parametrize("what,text,key", BAD, ids=[b[0] for b in BAD])
+def test_bad_scene_is_one_line_exit_2_nothing_written(tmp_path, what, text, key):
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(text)
+    r = sph("run", scene, "--out", tmp_path / "o")
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert key in lines[0] and "tiny.toml" in lines[0]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("args,key", [
+    (["--backend", "fortran"], "--backend"), (["--dp", "0"], "--dp"), (["--comm", "carrier-pigeon"], "--comm"),
+    (["--schedule", "nope"], "--schedule"), (["--precision", "float16"], "--precision"),
+])
+def test_bad_flags_exit_2(tmp_path, args, key):
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD)
+    r = sph("run", scene, "--out", tmp_path / "o", *args)
+    assert r.returncode == 2, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and key in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_missing_scene_file_exit_2(tmp_path):
+    r = sph("run", tmp_path / "nope.toml", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "nope.toml" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_blow_up_exit_1_with_step_and_particle_earlier_frames_intact(tmp_path):
+    """CFL far beyond stability: the run must stop with the step, cause and a particle id."""
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD.replace("end_time = 0.02", "end_time = 2.0").replace(
+        "output_interval = 0.01", "output_interval = 0.002") + "[physics]\ncfl = 3.0\n")
+    r = sph("run", scene, "--out", tmp_path / "o", "--quiet")
+    assert r.returncode == 1, r.stderr
+    assert "step" in r.stderr and "particle id" in r.stderr, r.stderr
+    frames = list_frames(tmp_path / "o")
+    assert frames and frames[0][2] == 0
+    for idx, _, _ in frames:
+        a = read_frame(tmp_path / "o", index=idx)
+        assert len(a["id"]) > 0
+
+
+def test_info_and_python_m():
+    r = sph("info")
+    assert r.returncode == 0 and "numba-cpu" in r.stdout and "mock" in r.stdout
+
+
+def test_snapshot_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD)
+    assert sph("run", scene, "--out", tmp_path / "o", "--quiet").returncode == 0
+    r = sph("plot", "snapshot", tmp_path / "o", "--field", "pressure", "-o", tmp_path / "s.png")
+    assert r.returncode == 0 and (tmp_path / "s.png").stat().st_size > 1000
+    for what in ("timeline", "breakdown"):
+        r = sph("plot", what, tmp_path / "o", "-o", tmp_path / f"{what}.svg")
+        assert r.returncode == 0 and (tmp_path / f"{what}.svg").stat().st_size > 1000, r.stderr
+    r = sph("trace", tmp_path / "o", "--chrome", tmp_path / "t.json")
+    assert r.returncode == 0
+    import json
+    ev = json.loads((tmp_path / "t.json").read_text())["traceEvents"]
+    assert any(e.get("name") == "forces_interior@1" and e["ph"] == "X" for e in ev)
+
+
+def test_bench_json_fields():
+    r = sph("bench", example("still_water.toml"), "--steps", "5", "--warmup", "1", "--json")
+    assert r.returncode == 0, r.stderr
+    import json
+    d = json.loads(r.stdout)
+    for k in ("particles", "fluid_particles", "dim", "steps", "wall_s", "compile_s", "steps_per_s",
+              "particle_steps_per_s", "interactions_per_s", "bytes_per_particle", "task_seconds",
+              "backend", "comm", "ranks", "precision", "integrator", "device", "version"):
+        assert k in d, k
+    assert d["interactions_per_s"] > d["particle_steps_per_s"] > 0
