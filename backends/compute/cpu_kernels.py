@@ -80,6 +80,7 @@ def forces(dpos, dvel, drho, dpress, dkind,
         vya = dvel[i, 1]
         vza = dvel[i, 2] if dim == 3 else 0.0
         rho_a = drho[i]
+        inv_rho_a = 1.0 / rho_a
         p_a = dpress[i]
         a_fluid = dkind[i] == 0
         if not empty:
@@ -99,7 +100,7 @@ def forces(dpos, dvel, drho, dpress, dkind,
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
                             fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j], p_a, spress[j],
+                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
                             axx += fx
                             ayy += fy

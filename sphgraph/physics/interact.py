@@ -31,7 +31,7 @@ from .kernels import grad_factor
 
 
 @njit(inline="always", cache=True)
-def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, p_a, p_b, mass_b,
+def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
                b_bound, prm, kernel, ddt_kind, laminar):
     """Contribution of b to fluid particle a.
 
@@ -47,7 +47,7 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, p_a, p_b, mass_b,
     ar = mass_b * (dvx * frx + dvy * fry + dvz * frz) * rho_a * inv_rho_b
     dot = dvx * drx + dvy * dry + dvz * drz
     dot_rr2 = dot * inv_r2e
-    coef = -(p_a + p_b) / (rho_a * rho_b) * mass_b
+    coef = -(p_a + p_b) * inv_rho_a * inv_rho_b * mass_b
     if dot < 0.0:
         alpha = prm[P_VISC_BOUND] if b_bound else prm[P_VISC]
         coef += alpha * prm[P_C0] * prm[P_H] * dot_rr2 / (0.5 * (rho_a + rho_b)) * mass_b

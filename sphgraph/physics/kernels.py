@@ -16,7 +16,7 @@ import math
 
 from numba import njit
 
-from ..config import P_AW, P_BW, P_H, K_WENDLAND
+from ..config import P_AW, P_BWH, P_H, P_INV_H, K_WENDLAND
 
 
 @njit(inline="always", cache=True)
@@ -36,13 +36,15 @@ def kernel_w(r, prm, kernel):
 
 @njit(inline="always", cache=True)
 def grad_factor(r2, prm, kernel):
-    """F such that grad_a W_ab = F * (r_a - r_b), for 0 < r <= 2h."""
-    r = math.sqrt(r2)
-    q = r / prm[P_H]
+    """F such that grad_a W_ab = F * (r_a - r_b), for 0 < r <= 2h.
+
+    Written with q/r = 1/h (prm[P_BWH] = bw/h) so the hot path has no division.
+    """
+    q = math.sqrt(r2) * prm[P_INV_H]
     if kernel == K_WENDLAND:
         w = 1.0 - 0.5 * q
-        return prm[P_BW] * q * w * w * w / r
+        return prm[P_BWH] * w * w * w
     if q < 1.0:
-        return prm[P_BW] * (-3.0 * q + 2.25 * q * q) / r
+        return prm[P_BWH] * (-3.0 + 2.25 * q)
     w = 2.0 - q
-    return prm[P_BW] * (-0.75 * w * w) / r
+    return prm[P_BWH] * (-0.75 * w * w) / q
