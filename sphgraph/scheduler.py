@@ -82,8 +82,12 @@ class Scheduler:
         self.times = TaskTimes()
         self.t_origin = t_origin
         self.record_times = True
+        self.force_sinks = {c.rank: c.balancer for c in contexts if c.balancer is not None}
 
     def _record(self, rank, task, start, end):
+        sink = self.force_sinks.get(rank)
+        if sink is not None and task.label.startswith("forces_"):
+            sink.note_force_time(rank, end - start)
         if not self.record_times:
             return
         t = self.times

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
 from .errors import InputError, NumericalError
@@ -58,7 +59,7 @@ class Simulation:
 
     def __init__(self, scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production",
                  precision=None, dp=None, end_time=None, user_tasks=(), fixed_dt=None,
-                 comm_options=None, decomposition_axis=None):
+                 comm_options=None, decomposition_axis=None, balance=None):
         if not isinstance(scene, Scene):
             scene = Scene.from_toml(scene)
         if dp is not None or end_time is not None:
@@ -80,7 +81,11 @@ class Simulation:
         self.stages = 1 if phys.integrator == "verlet" else 2
         self.comm = comm_cls(ranks=ranks, **(comm_options or {}))
         self.nranks = self.comm.size
-        self.schedule.validate(self.nranks, self.stages, self.user_tasks)
+        self.balance_cfg = BalanceConfig.resolve(self.schedule.rebalance, scene.extra.get("balance"),
+                                                 balance, source=scene.source)
+        self.rebalance = (self.nranks > 1 and self.balance_cfg.enabled
+                          and "rebalance" in self.schedule.order)
+        self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance)
         self.compute = compute_cls()
         consts = scene.constants
         self.consts = consts
@@ -109,10 +114,13 @@ class Simulation:
                 st.axis, st.cut_lo, st.cut_hi = axis, cuts[r], cuts[r + 1]
             self.compute.prepare(st)
             dom = Slabs(r, axis, cuts, reach=2.2 * consts.h) if axis is not None else None
+            bal = Balancer(self.balance_cfg, axis, consts.h, scene.dp) if self.rebalance else None
             self.contexts.append(RankContext(rank=r, state=st, compute=self.compute,
                                              comm=self.comm.endpoint(r), domain=dom,
-                                             integrator=self.integrator, fixed_dt=fixed_dt, scene=scene))
-        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks)
+                                             integrator=self.integrator, fixed_dt=fixed_dt, scene=scene,
+                                             balancer=bal))
+        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
+                                   rebalance=self.rebalance)
         self.lo = np.asarray(scene.domain_min, float)
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0
@@ -173,7 +181,7 @@ class Simulation:
 
 def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production", out=None,
         overwrite=False, precision=None, end_time=None, max_steps=None, dp=None, progress=True,
-        user_tasks=(), fixed_dt=None, comm_options=None, write_output=True) -> RunResult:
+        user_tasks=(), fixed_dt=None, comm_options=None, write_output=True, balance=None) -> RunResult:
     """Run a scene to its end time (or `max_steps`) and write DIR/output.h5.
 
     Parameters mirror `sphgraph run` (DESIGN.md §5). Returns a `RunResult`.
@@ -183,7 +191,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
 
     sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
                      precision=precision, dp=dp, end_time=end_time, user_tasks=user_tasks,
-                     fixed_dt=fixed_dt, comm_options=comm_options)
+                     fixed_dt=fixed_dt, comm_options=comm_options, balance=balance)
     scene = sim.scene
     t_end = scene.end_time
     if max_steps is not None and (isinstance(max_steps, bool) or int(max_steps) < 1):
@@ -199,13 +207,15 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                                   sim.dim, sim.precision)
     prog = Progress(t_end, enabled=bool(progress) and root)
     frames = 0
+    last_saved = -1   # step of the last frame, known on every rank (frame_arrays gathers)
 
     def save_frame():
-        nonlocal frames
+        nonlocal frames, last_saved
         arrays = sim.frame_arrays()
         if writer is not None:
             writer.write_frame(frames, sim.time, sim.step_count, arrays)
         frames += 1
+        last_saved = sim.step_count
 
     try:
         if write_output:
@@ -225,8 +235,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                     next_out += scene.output_interval
             prog.update(sim.time, sim.step_count)
         wall = time.perf_counter() - t0
-        if write_output and frames and sim.step_count > 0 and writer is not None \
-                and writer.frames[-1][2] != sim.step_count:
+        if write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
             save_frame()
     except NumericalError:
         prog.close()
@@ -247,7 +256,20 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      timing=sim.scheduler.times)
 
 
+def _write_balance(writer, sim) -> None:
+    """/balance: one row per check (DESIGN.md; issue: step, applied, fluid_count, force_seconds)."""
+    b = next((c.balancer for c in sim.contexts if c.rank == 0 and c.balancer is not None), None)
+    if b is None or not b.datasets():
+        return
+    d = b.datasets()
+    writer.write_group("balance", d, attrs={
+        "policy": b.cfg.policy, "every": b.cfg.every, "threshold": b.cfg.threshold,
+        "checks": len(d["step"]), "applications": int(d["applied"].sum()),
+        "check_seconds": b.check_s, "apply_seconds": b.apply_s})
+
+
 def _write_timing(writer, sim) -> None:
+    _write_balance(writer, sim)
     cols = sim.scheduler.times.columns()
     if len(cols["rank"]):
         writer.write_timing(cols["rank"], cols["step"], cols["task"], cols["lane"], cols["start"], cols["end"])

@@ -13,12 +13,23 @@ from . import cpu_kernels as K
 from .base import ComputeBackend, dt_from_terms
 
 
+# Rows per thread below which a parallel region costs more than it saves: a
+# prange launch is ~10-20 us idle and milliseconds on a loaded machine, which
+# small ranks (mock MPI, halos) would pay many times per step.
+ROWS_PER_THREAD_LIGHT = 20000   # O(N) kernels: sort, gather, integrate, reductions
+ROWS_PER_THREAD_FORCES = 1000   # the pair loop: ~20-150 pairs per row
+
+
+def _threads(n: int, rows_per_thread: int) -> None:
+    numba.set_num_threads(max(1, min(numba.config.NUMBA_NUM_THREADS, n // rows_per_thread)))
+
+
 @register("compute", "numba-cpu")
 class NumbaCPU(ComputeBackend):
     default_precision = "float64"
 
     def device_name(self) -> str:
-        return f"cpu ({numba.get_num_threads()} threads)"
+        return f"cpu ({numba.config.NUMBA_NUM_THREADS} threads)"
 
     def prepare(self, state) -> None:
         p = state.particles
@@ -30,6 +41,7 @@ class NumbaCPU(ComputeBackend):
         state.reduced_stage = -1
 
     def host_arrays(self, state) -> dict:
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         p = state.particles
         press = np.empty_like(p.rho)
         K.pressure_into(p.rho, state.prm, press)
@@ -43,6 +55,7 @@ class NumbaCPU(ComputeBackend):
         return build_grid(pos, c.cell_size, reach, state.axes)
 
     def build_cells(self, state) -> None:
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         p = state.particles
         grid, perm = self._grid(state, p.pos)
         for name, arr in p.arrays().items():
@@ -55,6 +68,7 @@ class NumbaCPU(ComputeBackend):
         K.pressure_into(p.rho, state.prm, state.press)
 
     def prepare_halo(self, state, halo) -> None:
+        _threads(halo.n, ROWS_PER_THREAD_LIGHT)
         if halo.n == 0:
             halo.press = np.empty(0, state.dtype)
             halo.cells = None
@@ -84,10 +98,12 @@ class NumbaCPU(ComputeBackend):
                 return
             src = (halo.pos, halo.vel, halo.rho, halo.press, halo.kind)
             grid = halo.cells
+        _threads(p.n, ROWS_PER_THREAD_FORCES)
         K.forces(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
                  state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
 
     def reduce_forces(self, state, stage: int) -> None:
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         if state.reduced_stage == (state.step, stage):
             return
         names = [k for k in PARTS if k in state.parts] + sorted(k for k in state.parts if k not in PARTS)
@@ -99,6 +115,7 @@ class NumbaCPU(ComputeBackend):
         state.reduced_stage = (state.step, stage)
 
     def dt_local(self, state) -> float:
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         out = np.zeros((numba.get_num_threads(), 3))
         K.dt_terms(state.ace, state.particles.vel, state.visc, state.particles.kind, out)
         a2, v2, vm = out.max(axis=0)
@@ -106,6 +123,7 @@ class NumbaCPU(ComputeBackend):
         return dt_from_terms(a2, v2, vm, c.h, c.c0, state.cfl)
 
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         p = state.particles
         dt = state.dtype(state.dt)
         rho0 = state.dtype(state.consts.prm[P_RHO0])
@@ -120,6 +138,7 @@ class NumbaCPU(ComputeBackend):
             K.symplectic_correct(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
 
     def check(self, state, lo, hi):
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         p = state.particles
         bad = np.zeros((numba.get_num_threads(), 2), np.int64)
         K.check_state(p.pos, p.rho, p.kind, lo, hi, state.rho_min, state.rho_max, bad)
