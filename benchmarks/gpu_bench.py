@@ -1,0 +1,189 @@
+"""GPU benchmark of the numba-cuda backend (issue 6): SPHERIC test 2 at several dp.
+
+For each dp: set-up, warm-up steps (the first includes kernel compilation), a profile
+pass (device synchronised after every task, so the scheduler's task times are kernel
+times), then timed steps through the real scheduler, then the same steps through a
+bare loop that calls the backend directly (scheduler overhead), interactions counted
+on the device (pairs within 2h from each side, per force evaluation, as DualSPHysics),
+and device memory (numba's context memory info: peak used over the run / particles).
+
+    python3 benchmarks/gpu_bench.py --dp 0.01 0.006 --steps 20 --json out.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def spheric2(dp):
+    from sphgraph.scene import Scene
+    path = ROOT / "examples" / "spheric2.toml"
+    return Scene.from_toml(path).with_overrides(dp=dp)
+
+
+def _used(cuda):
+    free, total = cuda.current_context().get_memory_info()
+    return total - free, total
+
+
+def bare_step(sim):
+    """One step calling the backend in the production order (single rank), no scheduler."""
+    comp = sim.compute
+    c = sim.contexts[0]
+    st = c.state
+    n = sim.step_count
+    st.step = n
+    euler = sim.integrator == "verlet" and (n + 1) % sim.scene.physics.verlet_euler_every == 0
+    comp.build_cells(st)
+    for s in range(1, sim.stages + 1):
+        comp.forces(st, "interior")
+        if s == 1:
+            comp.reduce_forces(st, 1)
+            st.dt_local = comp.dt_local(st)
+            st.dt = st.dt_local
+        comp.reduce_forces(st, s)
+        comp.integrate(st, s, sim.integrator, euler)
+    sim.time += st.dt
+    sim.step_count = n + 1
+    st.time = sim.time
+    sim.check()
+
+
+def one(dp, steps, warmup, precision, profile_steps, bare):
+    from numba import cuda
+    from sphgraph.solver import Simulation
+    cuda.synchronize()
+    used0, total = _used(cuda)
+    t0 = time.perf_counter()
+    sim = Simulation(spheric2(dp), backend="numba-cuda", precision=precision)
+    setup_s = time.perf_counter() - t0
+    st = sim.contexts[0].state
+    n = sim.n_total
+    t0 = time.perf_counter()
+    sim.step()
+    cuda.synchronize()
+    compile_s = time.perf_counter() - t0
+    for _ in range(max(warmup - 1, 0)):
+        sim.step()
+    cuda.synchronize()
+    peak = _used(cuda)[0]
+    # profile: synchronise after each task
+    sim.compute.sync_tasks = True
+    sim.scheduler.times.clear()
+    first = sim.step_count
+    for _ in range(profile_steps):
+        sim.step()
+    prof = sim.scheduler.times.seconds_by_kind(first_step=first)
+    prof_total = sum(prof.values())
+    sim.compute.sync_tasks = False
+    # timed, through the scheduler
+    sim.scheduler.times.clear()
+    cuda.synchronize()
+    b0 = dict(st.extra.get("bytes_by_kind", {}))
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        sim.step()
+    cuda.synchronize()
+    wall = time.perf_counter() - t0
+    b1 = dict(st.extra.get("bytes_by_kind", {}))
+    peak = max(peak, _used(cuda)[0])
+    bare_wall = None
+    if bare:
+        sim.scheduler.record_times = False
+        cuda.synchronize()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            bare_step(sim)
+        cuda.synchronize()
+        bare_wall = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sim.step()
+        cuda.synchronize()
+        wall2 = time.perf_counter() - t0
+        wall = min(wall, wall2)
+    pairs = sim.compute.count_pairs(st)
+    cuda.synchronize()
+    peak = max(peak, _used(cuda)[0])
+    evals = steps * sim.stages
+    out = {
+        "scene": "spheric2", "dp": dp, "particles": n, "fluid_particles": sim.n_fluid,
+        "boundary_particles": n - sim.n_fluid, "precision": precision, "integrator": sim.integrator,
+        "steps": steps, "wall_s": wall, "steps_per_s": steps / wall,
+        "particle_steps_per_s": steps * n / wall, "interactions_per_s": pairs * evals / wall,
+        "pairs_per_particle": pairs / n, "compile_s": compile_s, "setup_s": setup_s,
+        "device_bytes_per_particle_peak": (peak - used0) / n,
+        "state_bytes_per_particle": sim.compute.state_bytes(st) / n,
+        "device_total_bytes": total,
+        "profile_seconds_per_step": {k: v / profile_steps for k, v in prof.items()},
+        "profile_share": {k: v / prof_total for k, v in prof.items()} if prof_total else {},
+        "bus_bytes_per_step": {k: (b1.get(k, 0) - b0.get(k, 0)) / steps for k in b1},
+        "device": sim.compute.device_name(),
+        "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+        "command": " ".join(sys.argv),
+    }
+    if bare_wall is not None:
+        out["bare_loop_wall_s"] = bare_wall
+        out["scheduler_overhead_share"] = (wall - bare_wall) / wall
+    del sim, st
+    import gc
+    gc.collect()
+    cuda.current_context().deallocations.clear()
+    return out
+
+
+def roofline():
+    """Device-to-device copy bandwidth (read + write) on this GPU."""
+    import numpy as np
+    from numba import cuda
+    import os
+    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
+        return {"skipped": "simulator"}
+    n = 1 << 28   # 1 GiB of float32
+    a = cuda.device_array(n, np.float32)
+    b = cuda.device_array(n, np.float32)
+    b.copy_to_device(a)
+    cuda.synchronize()
+    t0 = time.perf_counter()
+    for _ in range(5):
+        b.copy_to_device(a)
+    cuda.synchronize()
+    dt = (time.perf_counter() - t0) / 5
+    return {"d2d_copy_GBps_read_plus_write": 2 * a.nbytes / dt / 1e9}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dp", type=float, nargs="+", default=[0.01, 0.006])
+    ap.add_argument("--steps", type=int, default=20)
+    ap.add_argument("--warmup", type=int, default=3)
+    ap.add_argument("--profile-steps", type=int, default=3)
+    ap.add_argument("--precision", default="float32")
+    ap.add_argument("--bare", action="store_true", help="also time a bare loop (scheduler overhead)")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    res = {"runs": [], "roofline": None}
+    try:
+        res["roofline"] = roofline()
+    except Exception as e:  # noqa: BLE001
+        res["roofline"] = {"error": repr(e)}
+    print(json.dumps(res["roofline"]), flush=True)
+    for dp in a.dp:
+        try:
+            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare)
+        except Exception as e:  # noqa: BLE001  (e.g. out of memory at the largest size)
+            r = {"dp": dp, "error": repr(e)}
+        res["runs"].append(r)
+        print(json.dumps(r), flush=True)
+        if a.json:
+            Path(a.json).write_text(json.dumps(res, indent=1))
+    return res
+
+
+if __name__ == "__main__":
+    main()
