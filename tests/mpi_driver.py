@@ -1,7 +1,8 @@
 """Run under `mpiexec -n N python tests/mpi_driver.py CHECK [CHECK ...]` by tests/test_multirank.py.
 
 Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`):
-  equiv2d / equiv3d   a small dam break for STEPS steps with --comm mpi; every step the
+  equiv2d / equiv3d / equiv2d-migrating (fluid pushed at 2 m/s: rows cross the cuts)
+                      a small dam break for STEPS steps with --comm mpi; every step the
                       gathered ids equal the initial ids; rank 0 compares the final
                       positions (by id) with a single-rank run done here (comm single)
   schedules           every shipped schedule, each also with halo_order reversed, gives
@@ -33,10 +34,14 @@ def scene(kind):
     return Scene.from_toml(os.path.join(EXAMPLES, "dambreak3d.toml")).with_overrides(dp=0.03)
 
 
-def run_sim(sc, comm, steps, schedule="production", check_ids=True):
+def run_sim(sc, comm, steps, schedule="production", check_ids=True, push=0.0):
     from sphgraph import Simulation
     # 3D: split along x (the flow direction); `auto` picks the longest fluid extent (y here)
     sim = Simulation(sc, comm=comm, schedule=schedule, decomposition_axis="x" if sc.dim == 3 else None)
+    for c in sim.contexts:   # a uniform push moves rows across the cuts (see test_multirank.kick)
+        p = c.state.particles
+        p.vel[p.kind == 0, 0] += push
+        p.vel_m1[p.kind == 0, 0] += push
     a = sim.frame_arrays()
     ids0 = None if a is None else a["id"].copy()
     bad = None
@@ -50,18 +55,18 @@ def run_sim(sc, comm, steps, schedule="production", check_ids=True):
     return sim, a, bad
 
 
-def check_equiv(kind):
+def check_equiv(kind, push=0.0):
     from mpi4py import MPI
     comm = MPI.COMM_WORLD
     sc = scene(kind)
-    sim, a, bad = run_sim(sc, "mpi", STEPS)
+    sim, a, bad = run_sim(sc, "mpi", STEPS, push=push)
     if comm.rank != 0:
         return None
-    _, ref, _ = run_sim(sc, "single", STEPS, check_ids=False)
+    _, ref, _ = run_sim(sc, "single", STEPS, check_ids=False, push=push)
     span = float(np.max(np.asarray(sc.domain_max) - np.asarray(sc.domain_min)))
     err = float(np.abs(a["position"] - ref["position"]).max()) if a["id"].shape == ref["id"].shape else np.inf
     ok = bad is None and np.array_equal(a["id"], ref["id"]) and err <= TOL * span
-    return {"check": f"equiv{kind}", "ok": bool(ok), "ranks": comm.size, "steps": STEPS,
+    return {"check": f"equiv{kind}" + ("-migrating" if push else ""), "ok": bool(ok), "ranks": comm.size, "steps": STEPS,
             "particles": int(len(a["id"])), "max_abs_err": err, "rel_err": err / span, "ids": bad or "ok"}
 
 
@@ -82,7 +87,7 @@ def check_schedules():
                 s = Schedule.from_dict(d, name=f"{name}-reversed")
             else:
                 s = base
-            _, a, bad = run_sim(sc, "mpi", STEPS_SCHED, schedule=s, check_ids=False)
+            _, a, bad = run_sim(sc, "mpi", STEPS_SCHED, schedule=s, check_ids=False, push=2.0)
             if comm.rank == 0:
                 results[s.name] = a
     if comm.rank != 0:
@@ -117,6 +122,7 @@ def check_conformance():
 
 
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
+          "equiv2d-migrating": lambda: check_equiv("2d", 2.0),
           "schedules": check_schedules, "conformance": check_conformance}
 
 

@@ -323,3 +323,40 @@ def efficiency_curve(scene, ranks_list, **kw) -> dict:
     """E(N) = (steps/s on N / N) / (steps/s on 1), predicted, for each N in `ranks_list`."""
     base = predict(scene, 1, **kw).steps_per_s
     return {n: predict(scene, n, **kw).steps_per_s / n / base for n in ranks_list}
+
+
+FIT_CASES = [("dambreak2d.toml", 0.04), ("dambreak2d.toml", 0.02), ("dambreak2d.toml", 0.01),
+             ("dambreak2d.toml", 0.007), ("dambreak3d.toml", 0.04), ("dambreak3d.toml", 0.03),
+             ("dambreak3d.toml", 0.02), ("dambreak3d.toml", 0.015)]
+
+
+def main(argv=None):
+    """`python -m sphgraph.backends.comm.costmodel fit EXAMPLES_DIR [OUT.toml]`: refit the costs."""
+    import os
+    import sys
+    import numba
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] != "fit":
+        print(main.__doc__)
+        return 2
+    ex = argv[1] if len(argv) > 1 else "examples"
+    out = argv[2] if len(argv) > 2 else None
+    cases = [(os.path.join(ex, f), dp) for f, dp in FIT_CASES]
+    samples = measure_runs(cases, steps=int(os.environ.get("FIT_STEPS", "25")))
+    m = fit_costs(samples)
+    note = (f"Cost model fitted by `python -m sphgraph.backends.comm.costmodel fit` on single-rank\n"
+            f"numba-cpu runs ({numba.get_num_threads()} threads) of the 2D/3D dam breaks, "
+            f"{min(s[1] for s in samples):.0f}..{max(s[1] for s in samples):.0f} particles.\n"
+            "forces_halo_* borrow forces_interior's coefficients; unlisted kinds cost 1 us.")
+    text = m.to_toml(note)
+    if out:
+        with open(out, "w") as f:
+            f.write(text)
+    print(text)
+    for lab, p, q, s in sorted(samples):
+        print(f"# {lab:16s} n={p:9.0f} pairs={q:11.0f} measured={s:.3e} model={m.seconds(lab, p, q):.3e}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
