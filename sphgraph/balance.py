@@ -39,7 +39,7 @@ class BalanceConfig:
     policy: str = "particles"
     base: str = "particles"                 # what `memory` caps
     max_particles_per_rank: int | None = None
-    smoothing: float = 0.5                  # weight of the newest time sample (time policy)
+    smoothing: float = 1.0                  # weight of the newest sample of speeds (time policy); <1 damps noise
 
     @classmethod
     def resolve(cls, schedule: dict, scene: dict, flags: dict, source="scene") -> "BalanceConfig":

@@ -176,6 +176,9 @@ class Scene:
         "x", "y", "z" (3D only) or "auto".
     hydrostatic : bool
         Initialise fluid density hydrostatically instead of ``rho0``.
+    jitter : float
+        Random displacement of fluid particles, uniform in +-jitter*dp per axis
+        (seeded, reproducible); 0 keeps the exact lattice.
     max_particles : int
         Refuse scenes whose estimated particle count exceeds this.
     fluid, boundary : list of dict
@@ -201,6 +204,7 @@ class Scene:
     source: str = "<dict>"
     lattice_origin: np.ndarray | None = None
     hydrostatic: bool = False
+    jitter: float = 0.0
     max_particles: int = DEFAULT_MAX_PARTICLES
     fluid: list = field(default_factory=list)
     boundary: list = field(default_factory=list)
@@ -303,8 +307,9 @@ class Scene:
         physics = _physics(c, d.get("physics", {}), dim)
         dec = c.table("decomposition", d.get("decomposition", {}), ("axis",))
         axis = c.choice("decomposition.axis", dec.get("axis", "auto"), AXES[:dim] + ("auto",))
-        ini = c.table("initial", d.get("initial", {}), ("hydrostatic",))
+        ini = c.table("initial", d.get("initial", {}), ("hydrostatic", "jitter"))
         hydro = c.boolean("initial.hydrostatic", ini.get("hydrostatic", False))
+        jitter = c.number("initial.jitter", ini.get("jitter", 0.0), ge=0.0, le=0.25)
         lim = c.table("limits", d.get("limits", {}), ("max_particles",))
         maxp = int(c.number("limits.max_particles",
                             lim.get("max_particles", DEFAULT_MAX_PARTICLES), ge=1))
@@ -326,7 +331,7 @@ class Scene:
         scene = cls(name=name, dim=dim, dp=dp, end_time=end_time, output_interval=out_dt,
                     domain_min=dmin, domain_max=dmax, physics=physics,
                     decomposition_axis=axis, text="", source=source, lattice_origin=origin,
-                    hydrostatic=hydro, max_particles=maxp, fluid=fluid, boundary=boundary,
+                    hydrostatic=hydro, jitter=jitter, max_particles=maxp, fluid=fluid, boundary=boundary,
                     extra=extra)
         scene._check_extent(c)
         scene.text = text if text is not None else (
@@ -372,7 +377,7 @@ class Scene:
                        "origin": _vlist(self.lattice_origin)},
             "physics": phys,
             "decomposition": {"axis": self.decomposition_axis},
-            "initial": {"hydrostatic": self.hydrostatic},
+            "initial": {"hydrostatic": self.hydrostatic, "jitter": self.jitter},
             "limits": {"max_particles": self.max_particles},
             "fluid": copy.deepcopy(self.fluid),
             "boundary": copy.deepcopy(self.boundary),
@@ -493,6 +498,9 @@ class Scene:
             g = abs(float(k.gravity[self.vertical]))
             depth = np.maximum(self.surface_level() - pos[:, self.vertical], 0.0)
             rho[:] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+        if self.jitter > 0:  # breaks lattice ties (e.g. for slab cuts); same seed, same scene
+            rng = np.random.default_rng(12345)
+            pos[nb:] += rng.uniform(-self.jitter, self.jitter, (nf, self.dim)) * self.dp
         return Particles.create(np.arange(n, dtype=np.int64), kind, pos,
                                 np.zeros((n, self.dim)), rho, dtype=dtype)
 

@@ -94,6 +94,11 @@ class Simulation:
         self.n_fluid = particles.n_fluid
         self.dim = particles.dim
         self.ids = None
+        cap = self.balance_cfg.max_particles_per_rank
+        if self.rebalance and self.balance_cfg.policy == "memory" and cap and self.n_fluid > cap * self.nranks:
+            raise InputError(f"{scene.source}: balance.max_particles_per_rank: the scene's {self.n_fluid} fluid "
+                             f"particles cannot fit in {self.nranks} ranks of {cap}: expected a cap >= "
+                             f"{-(-self.n_fluid // self.nranks)} or more ranks")
         if self.nranks > 1:
             axis = choose_axis(decomposition_axis or scene.decomposition_axis, particles, consts.gravity)
             if axis >= self.dim:
