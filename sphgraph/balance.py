@@ -174,8 +174,6 @@ class Balancer:
 
     def step(self, ctx) -> None:
         st = ctx.state
-        if not self.due(st.step):
-            return
         t0 = time.perf_counter()
         dom = ctx.domain
         x = st.particles.pos[st.particles.kind == FLUID, self.axis]

@@ -82,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--field", default="pressure")
     q.add_argument("--output", "-o")
     for name, helptext in (("timeline", "per-rank Gantt chart of the tasks (paper Fig. 2)"),
-                           ("breakdown", "share of each task per rank (paper Figs. 11-12)")):
+                           ("breakdown", "share of each task per rank (paper Figs. 11-12)"),
+                           ("balance", "fluid share and force time per rank over time (paper Figs. 5-6)")):
         q = psub.add_parser(name, help=helptext)
         q.add_argument("outdir")
         q.add_argument("--output", "-o")
@@ -195,6 +196,8 @@ def cmd_plot(args) -> int:
     from . import plots
     if args.what == "snapshot":
         path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
+    elif args.what == "balance":
+        path = plots.plot_balance(args.outdir, path=args.output)
     elif args.what == "timeline":
         path = plots.plot_timeline(args.outdir, path=args.output, steps=args.steps)
     else:

@@ -295,3 +295,38 @@ def plot_schedule_graph(schedule, ranks: int, stages: int, path) -> str:
     ax.set_yticks([])
     ax.set_title(f"schedule {schedule.name}: program order (grey), messages (red)")
     return _save(fig, path)
+
+
+def plot_balance(out_dir, path=None) -> str:
+    """Load balancing (seed paper Figs. 5-6): each rank's share of the fluid particles
+    at every check, and its force-computation time per step."""
+    from .io import read_group
+    try:
+        d = read_group(out_dir, "balance")
+    except Exception:  # noqa: BLE001 - any read failure means: no balancing records
+        d = None
+    if not d or "step" not in d:
+        raise InputError(f"{out_dir}: /balance: expected balancing records (a multi-rank run "
+                         f"with a schedule that places `rebalance`), found none")
+    path = _check_path(path or os.path.join(os.fspath(out_dir), "balance.png"), "balance")
+    step = np.asarray(d["step"])
+    counts = np.asarray(d["fluid_count"], float)
+    fsec = np.asarray(d["force_seconds"], float)
+    applied = np.asarray(d["applied"], bool)
+    fig = _new_figure((9.0, 6.5))
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
+    share = counts / counts.sum(axis=1, keepdims=True) * 100
+    for r in range(share.shape[1]):
+        ax1.plot(step, share[:, r], marker=".", label=f"rank {r}")
+        ax2.plot(step, fsec[:, r] * 1e3, marker=".", label=f"rank {r}")
+    for s in step[applied]:
+        ax1.axvline(s, color="0.8", lw=0.8, zorder=0)
+        ax2.axvline(s, color="0.8", lw=0.8, zorder=0)
+    ax1.set_ylabel("share of fluid particles [%]\n(halos included)")
+    ax2.set_ylabel("force time per step [ms]")
+    ax2.set_xlabel("step (grey lines: new cuts applied)")
+    ax1.legend(fontsize=7, ncol=min(4, share.shape[1]))
+    attrs = d.get("attrs", {})
+    ax1.set_title(f"load balancing: policy {attrs.get('policy', '?')}, "
+                  f"{int(applied.sum())} of {len(step)} checks applied")
+    return _save(fig, path)

@@ -77,8 +77,11 @@ class Scheduler:
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
-        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, rebalance)
+        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False)
                          for c in contexts}
+        # `rebalance` is conditional: a step that checks the balance runs the program with it
+        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True)
+                                   for c in contexts} if rebalance else self.programs
         self.times = TaskTimes()
         self.t_origin = t_origin
         self.record_times = True
@@ -98,8 +101,9 @@ class Scheduler:
         t.start.append(start - self.t_origin)
         t.end.append(end - self.t_origin)
 
-    def step(self) -> None:
-        self.comm.execute([(c, self.programs[c.rank]) for c in self.contexts], self._record)
+    def step(self, rebalance: bool = False) -> None:
+        progs = self.programs_rebalance if rebalance else self.programs
+        self.comm.execute([(c, progs[c.rank]) for c in self.contexts], self._record)
 
     def task_kinds(self):
         return {t.label for p in self.programs.values() for t in p if isinstance(t.kind, TaskKind)}

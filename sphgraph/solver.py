@@ -138,7 +138,8 @@ class Simulation:
         for c in self.contexts:
             c.euler = euler
             c.state.step = n
-        self.scheduler.step()
+        bal = self.contexts[0].balancer
+        self.scheduler.step(rebalance=bal is not None and bal.due(n))
         dt = self.contexts[0].state.dt
         self.time += dt
         self.step_count = n + 1
