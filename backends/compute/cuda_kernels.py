@@ -271,6 +271,7 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
     vya = dvy_[i]
     vza = dvz_[i] if dim == 3 else zero
     rho_a = drho[i]
+    inv_rho_a = 1.0 / rho_a
     p_a = dpress[i]
     a_fluid = dkind[i] == 0
     if not empty:
@@ -292,7 +293,7 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
                     dvz = (vza - svz[j]) if dim == 3 else zero
                     if a_fluid:
                         fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                            drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j], p_a, spress[j],
+                            drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                             mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
                         axx += fx
                         ayy += fy
