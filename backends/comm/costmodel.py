@@ -215,16 +215,23 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
     solver's `equal_cuts`, and each rank's edge rows counted within 2.2h of its cuts.
     """
     from sphgraph.domain import choose_axis, equal_cuts
-    nf, nb = scene.count_particles()
-    n_full = nf + nb
-    sc, scale = scene, 1.0
-    if n_full > max_build:
-        dp_c = scene.dp * (n_full / max_build) ** (1.0 / scene.dim)
-        sc = scene.with_overrides(dp=dp_c)
-        nfc, nbc = sc.count_particles()
-        scale = n_full / float(nfc + nbc)
+    from sphgraph.particles import FLUID
+    dim = scene.dim
+    # fluid fills volumes (~dp^-dim), boundaries are single layers on surfaces (~dp^-(dim-1));
+    # count on a 4x coarser lattice first: counting 16 M lattice points is itself slow
+    nf4, nb4 = scene.with_overrides(dp=scene.dp * 4.0).count_particles()
+    n_est = nf4 * 4.0 ** dim + nb4 * 4.0 ** (dim - 1)
+    sc, ratio = scene, 1.0
+    if n_est > max_build:
+        ratio = (n_est / max_build) ** (1.0 / dim)
+        sc = scene.with_overrides(dp=scene.dp * ratio)
     p = sc.build_particles(np.float64)
-    consts = scene.constants          # the full-resolution h (cuts and reach in metres)
+    wts = np.where(p.kind == FLUID, ratio ** dim, ratio ** (dim - 1))
+    n_full = float(wts.sum())
+    # the full-resolution h (cuts and reach in metres); hswl from the coarse build (only c0
+    # depends on it), since the scene's own hswl would enumerate the full lattice
+    from sphgraph.config import derive
+    consts = derive(scene.physics, dim, scene.dp, sc.hswl)
     ax = choose_axis(axis or scene.decomposition_axis, p, consts.gravity)
     cuts = equal_cuts(p, ax, ranks, consts.h, weights)
     x = p.pos[:, ax]
@@ -232,10 +239,11 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
     owner = np.searchsorted(cuts[1:-1], x, side="right")
     rows, lo_edge, hi_edge = [], [], []
     for r in range(ranks):
-        mine = x[owner == r]
-        rows.append(len(mine) * scale)
-        lo_edge.append(np.count_nonzero(mine < cuts[r] + reach) * scale if r > 0 else 0.0)
-        hi_edge.append(np.count_nonzero(mine >= cuts[r + 1] - reach) * scale if r < ranks - 1 else 0.0)
+        sel = owner == r
+        mine, w = x[sel], wts[sel]
+        rows.append(float(w.sum()))
+        lo_edge.append(float(w[mine < cuts[r] + reach].sum()) if r > 0 else 0.0)
+        hi_edge.append(float(w[mine >= cuts[r + 1] - reach].sum()) if r < ranks - 1 else 0.0)
     k = pairs_per_particle(consts, scene.dim, scene.dp)
     return {"rows": rows, "lo_edge": lo_edge, "hi_edge": hi_edge, "k": k, "dim": scene.dim,
             "particles": n_full, "cuts": cuts, "axis": ax}
