@@ -245,13 +245,13 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
             save_frame()
     except NumericalError:
         prog.close()
+        _write_timing(writer, sim)   # on every rank: gathers the ranks' timings under MPI
         if writer is not None:
-            _write_timing(writer, sim)
             writer.close()
         raise
     prog.close()
+    _write_timing(writer, sim)
     if writer is not None:
-        _write_timing(writer, sim)
         writer.close()
     return RunResult(out_dir=out_dir, steps=sim.step_count, time=sim.time, wall_s=wall,
                      compile_s=compile_s, particles=sim.n_total, fluid_particles=sim.n_fluid, dim=sim.dim,
@@ -275,7 +275,13 @@ def _write_balance(writer, sim) -> None:
 
 
 def _write_timing(writer, sim) -> None:
-    _write_balance(writer, sim)
     cols = sim.scheduler.times.columns()
+    if len(sim.comm.local_ranks) < sim.nranks and hasattr(sim.comm, "gather"):
+        parts = sim.comm.gather(cols)    # MPI: every rank's /timing rows to the root
+        if parts is not None:
+            cols = {k: np.concatenate([p[k] for p in parts]) for k in cols}
+    if writer is None:
+        return
+    _write_balance(writer, sim)
     if len(cols["rank"]):
         writer.write_timing(cols["rank"], cols["step"], cols["task"], cols["lane"], cols["start"], cols["end"])

@@ -210,3 +210,7 @@ def test_mpi_cli_run_writes_one_output(tmp_path):
     assert len(frames) >= 2
     f = read_frame(out, frames[-1][0])
     assert np.array_equal(f["id"], np.arange(len(f["id"])))
+    from sphgraph.io import read_timing
+    t = read_timing(out)
+    assert set(np.asarray(t["rank"]).tolist()) == {0, 1}       # every rank's timings, gathered
+    assert "recv_halo_1@1" in {str(x) for x in t["task"][np.asarray(t["rank"]) == 1]}
