@@ -233,6 +233,9 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
     hi1 = 0
     lo2 = 0
     hi2 = 0
+    q0 = 0.0   # destination coordinate along (fast, mid, slow), float64
+    q1 = 0.0
+    q2 = 0.0
     empty = False
     for k in range(3):
         a = a0 if k == 0 else (a1 if k == 1 else a2)
@@ -240,6 +243,7 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
         nk = n0 if k == 0 else (n1 if k == 1 else n2)
         lo = 0
         hi = 0
+        x = 0.0
         if a >= 0:
             x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
             c = int(math.floor((x - o) * inv_size))
@@ -250,12 +254,19 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
         if k == 0:
             lo0 = lo
             hi0 = hi
+            q0 = x
         elif k == 1:
             lo1 = lo
             hi1 = hi
+            q1 = x
         else:
             lo2 = lo
             hi2 = hi
+            q2 = x
+    # rows of cells along the fast axis are cut to the part that the 2h sphere can reach
+    # (padded: only rows/cells wholly beyond 2h are skipped, so the pairs are the CPU's)
+    size = 1.0 / inv_size
+    reach2 = float(prm[P_SUPPORT2]) * 1.000001 + 1e-30
     zero = drho[i] - drho[i]
     axx = zero
     ayy = zero
@@ -276,9 +287,23 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
     a_fluid = dkind[i] == 0
     if not empty:
         for c2 in range(lo2, hi2 + 1):
+            d2 = 0.0
+            if a2 >= 0:
+                d2 = max(0.0, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
             for c1 in range(lo1, hi1 + 1):
+                d1 = 0.0
+                if a1 >= 0:
+                    d1 = max(0.0, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
+                rem = reach2 - d1 * d1 - d2 * d2
+                if rem < 0.0:
+                    continue
+                rr = math.sqrt(rem)
+                clo = max(lo0, int(math.floor((q0 - rr - o0) * inv_size)))
+                chi = min(hi0, int(math.floor((q0 + rr - o0) * inv_size)))
+                if clo > chi:
+                    continue
                 row = (c2 * n1 + c1) * n0
-                for j in range(start[row + lo0], start[row + hi0 + 1]):
+                for j in range(start[row + clo], start[row + chi + 1]):
                     drx = xa - srx[j]
                     dry = ya - sry[j]
                     drz = (za - srz[j]) if dim == 3 else zero
