@@ -89,6 +89,9 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--output", "-o")
         if name == "timeline":
             q.add_argument("--steps", default="last3", help="'last3' (default), 'all' or A:B")
+    q = psub.add_parser("efficiency", help="parallel efficiency E against ranks (paper Figs. 8-9)")
+    q.add_argument("outdir", metavar="FILE.json|OUTDIR")
+    q.add_argument("--output", "-o")
     return ap
 
 
@@ -198,6 +201,8 @@ def cmd_plot(args) -> int:
         path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
     elif args.what == "balance":
         path = plots.plot_balance(args.outdir, path=args.output)
+    elif args.what == "efficiency":
+        path = plots.plot_efficiency(args.outdir, path=args.output)
     elif args.what == "timeline":
         path = plots.plot_timeline(args.outdir, path=args.output, steps=args.steps)
     else:

@@ -15,7 +15,8 @@ import numpy as np
 from .errors import InputError
 from .io import read_attrs, read_frame
 
-__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot", "plot_timeline", "plot_breakdown", "plot_schedule_graph"]
+__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot", "plot_timeline", "plot_breakdown", "plot_schedule_graph",
+           "plot_efficiency"]
 
 
 # ---------------------------------------------------------------------- shared helpers
@@ -329,4 +330,84 @@ def plot_balance(out_dir, path=None) -> str:
     attrs = d.get("attrs", {})
     ax1.set_title(f"load balancing: policy {attrs.get('policy', '?')}, "
                   f"{int(applied.sum())} of {len(step)} checks applied")
+    return _save(fig, path)
+
+
+PAPER_EFFICIENCY = [(2, 0.98, "2 GPUs, >= 4 M"), (4, 0.92, "4 GPUs"), (14, 0.81, "14 GPUs, 16 M")]
+
+
+def efficiency_series(data: dict) -> list[dict]:
+    """[{label, N, E, measured}] from an efficiency JSON: `benchmarks/efficiency_predict.py
+    curve` (variants x schedules), `benchmarks/efficiency_cpu.py` (one measured N), or
+    {"series": [{"label", "N", "E", "measured"}]}."""
+    if "series" in data:
+        return [dict(s, measured=bool(s.get("measured", False))) for s in data["series"]]
+    out = []
+    for vname, v in data.get("variants", {}).items():
+        for sched, rows in v.get("schedules", {}).items():
+            ns = sorted(int(n) for n in rows)
+            out.append({"label": f"{v.get('label', vname)} [{sched}]", "N": ns,
+                        "E": [float(rows[str(n)]["E"]) for n in ns], "measured": False,
+                        "variant": vname, "schedule": sched})
+    if not out and "E" in data and "ranks" in data:
+        out.append({"label": f"measured, {data.get('scene', '?')}, {data['ranks']} ranks x 1 thread",
+                    "N": [1, int(data["ranks"])], "E": [1.0, float(data["E"])], "measured": True})
+        p = data.get("predicted")
+        if p and "E" in p:
+            out.append({"label": "predicted (mock engine)", "N": [1, int(data["ranks"])],
+                        "E": [1.0, float(p["E"])], "measured": False})
+    return out
+
+
+def plot_efficiency(source, path=None) -> str:
+    """Parallel efficiency E = (steps/s on N / N) / (steps/s on 1) against N (seed paper
+    Figs. 8-9), with the paper's points (0.98 on 2 GPUs, 0.92 on 4, 0.81 on 14 at 16 M).
+    `source`: an efficiency JSON file, or a directory holding `efficiency.json`."""
+    import json
+    src = os.fspath(source)
+    if os.path.isdir(src):
+        src = os.path.join(src, "efficiency.json")
+    try:
+        with open(src) as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise InputError(f"{source}: expected an efficiency JSON file (benchmarks/efficiency_predict.py "
+                         f"curve --json F) or a directory holding efficiency.json") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{src}: expected JSON: {e}") from None
+    series = efficiency_series(data) if isinstance(data, dict) else []
+    if not series:
+        raise InputError(f"{src}: expected efficiency results (variants/schedules with E per N, "
+                         f"'series', or an efficiency_cpu.py result), found none")
+    path = _check_path(path or os.path.splitext(src)[0] + ".png", "efficiency")
+    fig = _new_figure((8.0, 5.5))
+    ax = fig.subplots()
+    styles = {"production": "-", "bulk-synchronous": "--"}
+    colors: dict = {}
+    cycle = ["C0", "C1", "C2", "C3", "C4", "C5", "C6"]
+    for s in series:
+        key = s.get("variant", s["label"])
+        c = colors.setdefault(key, cycle[len(colors) % len(cycle)])
+        ax.plot(s["N"], s["E"], ls="-" if s["measured"] else styles.get(s.get("schedule"), "-"),
+                marker="s" if s["measured"] else "o", ms=4, color=c, label=s["label"])
+    for n, e, what in PAPER_EFFICIENCY:
+        ax.plot([n], [e], marker="*", ms=13, color="k", ls="none",
+                label="seed paper (2012)" if n == PAPER_EFFICIENCY[0][0] else None)
+        ax.annotate(f"{e:.2f} ({what})", (n, e), textcoords="offset points", xytext=(6, -12), fontsize=7)
+    ax.axhline(1.0, color="0.7", lw=0.8, zorder=0)
+    ns = sorted({n for s in series for n in s["N"]} | {n for n, _, _ in PAPER_EFFICIENCY})
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(ns)
+    ax.set_xticklabels([str(n) for n in ns])
+    lo = min(min(s["E"]) for s in series)
+    ax.set_ylim(max(0.0, min(lo, 0.75) - 0.05), 1.05)
+    ax.set_xlabel("ranks N")
+    ax.set_ylabel("E = (steps/s on N / N) / (steps/s on 1)")
+    parts = [str(data.get("scene", "")).replace("examples/", "")]
+    if data.get("particles"):
+        parts.append(f"{data['particles'] / 1e6:.1f} M particles")
+    if "variants" in data:
+        parts.append("predicted by the mock engine (model)")
+    ax.set_title("parallel efficiency: " + ", ".join(p for p in parts if p), fontsize=10)
+    ax.legend(fontsize=7, loc="lower left")
     return _save(fig, path)
