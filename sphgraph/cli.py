@@ -45,6 +45,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output directory (default out/<scene name>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--checkpoint-every", metavar="N|Ts",
+                   help="write DIR/checkpoints/ckpt_<step>.h5 every N steps or T simulated seconds (e.g. 0.05s)")
+    p.add_argument("--restart", metavar="DIR", help="continue the run in DIR from its newest valid checkpoint")
+    p.add_argument("--walltime", type=float, metavar="SECONDS",
+                   help="after SECONDS of wall time write a checkpoint and exit 0 (as on SIGTERM)")
+    p.add_argument("--no-invariants", action="store_true",
+                   help="skip the per-step particle count / id / NaN-velocity checks")
 
     p = sub.add_parser("bench", help="time a scene; one JSON object on stdout")
     _run_flags(p)
@@ -117,7 +124,13 @@ def cmd_run(args) -> int:
     res = run(args.scene, backend=args.backend, comm=args.comm, ranks=args.ranks, schedule=args.schedule,
               out=args.out, overwrite=args.overwrite, precision=args.precision, end_time=args.end_time,
               max_steps=args.max_steps, dp=args.dp, progress=not args.quiet,
-              comm_options=_comm_options(args))
+              comm_options=_comm_options(args), checkpoint_every=args.checkpoint_every,
+              restart=args.restart, walltime=args.walltime, invariants=not args.no_invariants)
+    if res.stopped is not None and _is_root(res):
+        print(f"sphgraph: stopped by {res.stopped} at step {res.steps} (t = {res.time:.6g} s); checkpoint "
+              f"{res.checkpoint}; continue with: sphgraph run {args.scene} --restart {res.out_dir}",
+              file=sys.stderr)
+        return 0
     if res.out_dir is not None and not args.quiet and _is_root(res):
         print(f"{res.steps} steps to t = {res.time:.4f} s in {res.wall_s:.1f} s "
               f"({res.steps_per_s:.0f} steps/s after the first step; first step {res.compile_s:.2f} s); "
@@ -224,7 +237,8 @@ def main(argv=None) -> int:
             print(f"sphgraph: error: {line}", file=sys.stderr)
         return 2
     except NumericalError as e:
-        print(f"sphgraph: numerical failure: {e}", file=sys.stderr)
+        if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
+            print(f"sphgraph: numerical failure: {e}", file=sys.stderr)
         return 1
     except SphgraphError as e:
         return _internal(e)

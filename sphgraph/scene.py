@@ -356,10 +356,17 @@ class Scene:
             raise c.error("fluid", f"boxes holding lattice points (spacing dp = {self.dp})", 0)
         bslabs = [b for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
         estimate = geo.boxes_count(fboxes) + geo.boxes_count(bslabs)
+        self._cache["estimate"] = estimate
         if estimate > self.max_particles:
             raise c.error("limits.max_particles",
                           f"an estimated particle count <= {self.max_particles} "
                           "(increase dp or raise limits.max_particles)", estimate)
+
+    def estimated_particles(self) -> int:
+        """Upper estimate of the particle count from index boxes (no allocation)."""
+        if "estimate" not in self._cache:
+            self._check_extent(_Checker(self.source))
+        return int(self._cache["estimate"])
 
     # --- serialisation -------------------------------------------------------------
 

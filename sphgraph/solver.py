@@ -5,6 +5,7 @@ output directory is touched, so bad input writes nothing.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +16,7 @@ from . import __version__
 from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
-from .errors import InputError, NumericalError
+from .errors import InputError, NumericalError, SphgraphError
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -24,7 +25,7 @@ from .state import RankState
 
 PRECISIONS = {"float32": np.float32, "float64": np.float64}
 CAUSES = {1: "NaN in position or density", 2: "particle left the domain",
-          3: "density outside the bounds [rho_min, rho_max]"}
+          3: "density outside the bounds [rho_min, rho_max]", 4: "NaN in velocity"}
 
 
 @dataclass
@@ -47,10 +48,13 @@ class RunResult:
     frames: int = 0
     task_seconds: dict = field(default_factory=dict)
     timing: object = None
+    start_step: int = 0              # > 0 after a restart (steps counts from the run's start)
+    stopped: str | None = None       # "SIGTERM" | "walltime": stopped early after a checkpoint
+    checkpoint: str | None = None    # the newest checkpoint written
 
     @property
     def steps_per_s(self) -> float:
-        timed = self.steps - 1
+        timed = self.steps - self.start_step - 1
         return timed / max(self.wall_s - self.compile_s, 1e-12) if timed > 0 else 0.0
 
 
@@ -59,7 +63,11 @@ class Simulation:
 
     def __init__(self, scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production",
                  precision=None, dp=None, end_time=None, user_tasks=(), fixed_dt=None,
-                 comm_options=None, decomposition_axis=None, balance=None):
+                 comm_options=None, decomposition_axis=None, balance=None, particles=None, cuts=None,
+                 invariants=True):
+        """`particles` (optional): start from these particles instead of `scene.build_particles`:
+        a `Particles` set (decomposed here), or one block per rank with their slab `cuts`
+        (kept when the rank count matches, re-decomposed otherwise) -- a restart."""
         if not isinstance(scene, Scene):
             scene = Scene.from_toml(scene)
         if dp is not None or end_time is not None:
@@ -89,7 +97,17 @@ class Simulation:
         self.compute = compute_cls()
         consts = scene.constants
         self.consts = consts
-        particles = scene.build_particles(self.dtype)
+        blocks = None
+        if particles is None:
+            from .invariants import check_memory
+            check_memory(scene, self.dtype)       # before allocating anything of the scene's size
+            particles = scene.build_particles(self.dtype)
+        elif isinstance(particles, (list, tuple)):
+            from .particles import Particles
+            blocks = list(particles) if len(particles) == self.nranks and cuts is not None else None
+            particles = Particles.concat(particles)
+            if blocks is None:   # another rank count: re-decompose from the rows in id order
+                particles = particles.take(np.argsort(particles.id, kind="stable"))
         self.n_total = particles.n
         self.n_fluid = particles.n_fluid
         self.dim = particles.dim
@@ -104,11 +122,14 @@ class Simulation:
             if axis >= self.dim:
                 raise InputError(f"{scene.source}: decomposition.axis: expected an axis of a "
                                  f"{self.dim}D scene, got {'xyz'[axis]!r}")
-            cuts = equal_cuts(particles, axis, self.nranks, consts.h)
-            slabs = split(particles, axis, cuts)
+            if blocks is not None:
+                cuts, slabs = np.asarray(cuts, float), blocks
+            else:
+                cuts = equal_cuts(particles, axis, self.nranks, consts.h)
+                slabs = split(particles, axis, cuts)
             self.axis = axis
         else:
-            axis, cuts, slabs = None, None, [particles]
+            axis, cuts, slabs = None, None, [blocks[0] if blocks else particles]
             self.axis = None
         self.contexts = []
         for r in self.comm.local_ranks:
@@ -130,6 +151,8 @@ class Simulation:
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0
         self.time = 0.0
+        from .invariants import Invariants
+        self.invariants = Invariants(self) if invariants else None
 
     # ------------------------------------------------------------------ stepping
     def step(self) -> None:
@@ -152,6 +175,8 @@ class Simulation:
         found = None
         for c in self.contexts:
             bad = self.compute.check(c.state, self.lo, self.hi)
+            if bad is None and self.invariants is not None:
+                bad = self.invariants.local_problem(c.state)
             if bad is not None and found is None:
                 row, cause = bad
                 found = (c.rank, int(c.state.particles.id[row]), cause)
@@ -162,6 +187,8 @@ class Simulation:
             raise NumericalError(f"step {self.step_count} (t = {self.time:.6g} s): {CAUSES[cause]}: "
                                  f"particle id {pid}{where}", step=self.step_count, particle_id=pid,
                                  cause=CAUSES[cause])
+        if self.invariants is not None:
+            self.invariants.check_step(self)
 
     def frame_arrays(self) -> dict | None:
         """All ranks' particles in id order (on the root; None elsewhere)."""
@@ -187,51 +214,95 @@ class Simulation:
 
 def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production", out=None,
         overwrite=False, precision=None, end_time=None, max_steps=None, dp=None, progress=True,
-        user_tasks=(), fixed_dt=None, comm_options=None, write_output=True, balance=None) -> RunResult:
+        user_tasks=(), fixed_dt=None, comm_options=None, write_output=True, balance=None,
+        checkpoint_every=None, restart=None, walltime=None, invariants=True) -> RunResult:
     """Run a scene to its end time (or `max_steps`) and write DIR/output.h5.
 
     Parameters mirror `sphgraph run` (DESIGN.md §5). Returns a `RunResult`.
+    Long runs (docs/long-runs.md): `checkpoint_every` (steps, or "0.05s" simulated
+    seconds) writes DIR/checkpoints/ckpt_<step>.h5; `restart=DIR` continues the run in
+    DIR from its newest valid checkpoint; SIGTERM or `walltime` seconds write a
+    checkpoint and return early (`RunResult.stopped`); `invariants` checks particle
+    count, ids and NaN every step.
     """
+    from . import checkpoint as ck
     from .io import OutputWriter, prepare_out_dir
     from .progress import Progress
 
-    sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
-                     precision=precision, dp=dp, end_time=end_time, user_tasks=user_tasks,
-                     fixed_dt=fixed_dt, comm_options=comm_options, balance=balance)
-    scene = sim.scene
-    t_end = scene.end_time
+    every = ck.parse_every(checkpoint_every)
+    walltime = ck.parse_walltime(walltime)
     if max_steps is not None and (isinstance(max_steps, bool) or int(max_steps) < 1):
         raise InputError(f"--max-steps: expected an integer >= 1, got {max_steps!r}")
+    saved = None
+    if restart is not None:
+        run_dir = ck.run_dir_of(restart)
+        if out is not None and Path(out).resolve() != Path(run_dir).resolve():
+            raise InputError(f"--out: expected the --restart directory {run_dir} or nothing, got {out}")
+        out, write_output = run_dir, True
+        saved = ck.find_latest(restart)
+        if precision is not None and precision != saved.meta["precision"]:
+            raise InputError(f"--precision: expected the checkpoint's {saved.meta['precision']} "
+                             f"on restart, got {precision}")
+        precision = saved.meta["precision"]
+    sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
+                     precision=precision, dp=dp, end_time=end_time, user_tasks=user_tasks,
+                     fixed_dt=fixed_dt, comm_options=comm_options, balance=balance,
+                     particles=None if saved is None else ck.blocks_for(saved, PRECISIONS[precision]),
+                     cuts=None if saved is None else saved.cuts,
+                     decomposition_axis=None if saved is None or saved.meta["axis"] < 0
+                     else "xyz"[saved.meta["axis"]], invariants=invariants)
+    scene = sim.scene
+    t_end = scene.end_time
+    if saved is not None:
+        ck.check_scene(saved, scene)
+        ck.restore(sim, saved)
     root = sim.comm.is_root
     writer = None
     out_dir = None
     if write_output:
         out_dir = Path(out) if out is not None else Path("out") / scene.name
-        if root:
+        if root and saved is not None:
+            writer = OutputWriter.open_existing(out_dir)
+            # frames after the checkpoint go; so does an end-of-run frame at its step (not in its count)
+            stray = [i for i, _, s in writer.frames if s == saved.step and i >= int(saved.meta["frames"])]
+            writer.truncate(after_step=saved.step - 1 if stray else saved.step)
+            ck.prune(out_dir, keep=ck.KEEP, after_step=saved.step)
+        elif root:
             prepare_out_dir(out_dir, overwrite=overwrite)
             writer = OutputWriter(out_dir, sim.root_attrs(sim.compute.name, sim.comm.name),
                                   sim.dim, sim.precision)
+    elif every is not None or walltime is not None:
+        raise InputError("--checkpoint-every/--walltime: expected an output directory (write_output=True)")
+    keeper = ck.Keeper(sim, out_dir, every, walltime)
+    if saved is not None and every is not None and every[0] == "time" \
+            and math.isfinite(saved.meta.get("next_checkpoint", math.inf)):
+        keeper.next_time = float(saved.meta["next_checkpoint"])
     prog = Progress(t_end, enabled=bool(progress) and root)
-    frames = 0
-    last_saved = -1   # step of the last frame, known on every rank (frame_arrays gathers)
+    frames = 0 if saved is None else int(saved.meta["frames"])
+    last_saved = -1 if saved is None else int(saved.meta["last_saved"])  # step of the last frame
+    start_step = sim.step_count
 
     def save_frame():
         nonlocal frames, last_saved
         arrays = sim.frame_arrays()
+        if sim.invariants is not None:
+            sim.invariants.check_frame(sim, arrays)
         if writer is not None:
             writer.write_frame(frames, sim.time, sim.step_count, arrays)
         frames += 1
         last_saved = sim.step_count
 
+    stopped = None
+    keeper.install()
     try:
-        if write_output:
+        if write_output and saved is None:
             save_frame()
-        next_out = scene.output_interval
+        next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
         t0 = time.perf_counter()
         compile_s = 0.0
         while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
             sim.step()
-            if sim.step_count == 1:
+            if sim.step_count == start_step + 1:
                 compile_s = time.perf_counter() - t0
                 prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")
                 prog.reset_clock(1)
@@ -239,16 +310,33 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                 save_frame()
                 while next_out <= sim.time + 1e-12:
                     next_out += scene.output_interval
+            if keeper.due():
+                keeper.save(next_out, frames, last_saved)
             prog.update(sim.time, sim.step_count)
+            if write_output:
+                stopped = keeper.stop_reason()
+                if stopped is not None:
+                    if keeper.last_step != sim.step_count:
+                        keeper.save(next_out, frames, last_saved)
+                    break
         wall = time.perf_counter() - t0
-        if write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
+        if stopped is None and every is not None and keeper.last_step != sim.step_count:
+            keeper.save(next_out, frames, last_saved)   # the end state (before the end frame): extendable
+        if stopped is None and write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
             save_frame()
     except NumericalError:
+        keeper.uninstall()
         prog.close()
         _write_timing(writer, sim)   # on every rank: gathers the ranks' timings under MPI
         if writer is not None:
             writer.close()
         raise
+    except Exception as e:
+        keeper.uninstall()
+        if not isinstance(e, SphgraphError) and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
+            _abort_all(sim, e)
+        raise
+    keeper.uninstall()
     prog.close()
     _write_timing(writer, sim)
     if writer is not None:
@@ -258,8 +346,18 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      backend=sim.compute.name, comm=sim.comm.name, ranks=sim.nranks,
                      precision=sim.precision, integrator=sim.integrator, schedule=sim.schedule.name,
                      device=sim.compute.device_name(), frames=frames,
-                     task_seconds=sim.scheduler.times.seconds_by_kind(first_step=1),
-                     timing=sim.scheduler.times)
+                     task_seconds=sim.scheduler.times.seconds_by_kind(first_step=start_step + 1),
+                     timing=sim.scheduler.times, start_step=start_step, stopped=stopped,
+                     checkpoint=keeper.last_path)
+
+
+def _abort_all(sim, e) -> None:
+    """An exception on one MPI rank: print it once (this rank) and abort every rank (exit 3)."""
+    import sys
+    c = sim.contexts[0]
+    print(f"sphgraph: internal error on rank {c.rank} at step {sim.step_count}: {type(e).__name__}: {e}; "
+          "aborting all ranks", file=sys.stderr, flush=True)
+    sim.comm.abort(3)
 
 
 def _write_balance(writer, sim) -> None:
