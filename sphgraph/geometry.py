@@ -215,6 +215,10 @@ class Grid:
             return np.empty(0, np.int64)
         return np.unique(np.concatenate(parts))
 
+    def point_keys(self, idx: np.ndarray) -> np.ndarray:
+        """Keys of index vectors ``idx`` ([n, dim], inside the window)."""
+        return ((np.asarray(idx, np.int64) - self.lo) * self.strides).sum(axis=1)
+
     def indices(self, keys: np.ndarray) -> np.ndarray:
         """Index vectors ([n, dim] int64) of ``keys``."""
         return np.stack(np.unravel_index(keys, self.shape), axis=1).astype(np.int64) + self.lo

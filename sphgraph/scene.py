@@ -28,7 +28,7 @@ import numpy as np
 from . import geometry as geo
 from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, PhysicsConfig, derive
 from .errors import InputError
-from .particles import FIXED, FLUID, Particles
+from .particles import FIXED, FLUID, MOVING, Particles
 
 try:
     import tomllib
@@ -40,7 +40,7 @@ DEFAULT_MAX_PARTICLES = 200_000_000
 # Tables that later features read (load balancing, probes, force output, moving
 # bodies). Accepted and kept raw in Scene.extra, unvalidated, until those
 # features validate them; extend this tuple to reserve another table name.
-EXTRA_TABLES = ("balance", "probes", "forces", "motion")
+EXTRA_TABLES = ("balance", "probes", "forces", "motion", "damping", "shifting")
 TOP_KEYS = ("format", "name", "dim", "dp", "end_time", "output_interval", "domain",
             "physics", "decomposition", "initial", "limits", "fluid", "boundary") + EXTRA_TABLES
 AXES = ("x", "y", "z")
@@ -49,9 +49,9 @@ BOUNDARY_TYPES = ("tank", "box", "wall")
 BOX_FILLS = ("solid", "surface")
 _ENTRY_KEYS = {
     ("fluid", "box"): ("type", "min", "max"),
-    ("boundary", "tank"): ("type", "min", "max", "open_top", "layers"),
-    ("boundary", "box"): ("type", "min", "max", "fill", "layers", "open_bottom"),
-    ("boundary", "wall"): ("type", "min", "max", "layers", "direction"),
+    ("boundary", "tank"): ("type", "name", "min", "max", "open_top", "layers"),
+    ("boundary", "box"): ("type", "name", "min", "max", "fill", "layers", "open_bottom"),
+    ("boundary", "wall"): ("type", "name", "min", "max", "layers", "direction"),
 }
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
@@ -209,6 +209,8 @@ class Scene:
     fluid: list = field(default_factory=list)
     boundary: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
+    periodic: tuple = ()            # axes ("x", "y", "z") that are periodic over [domain]
+    exclude_outside: bool = False   # particles leaving the domain / density bounds are excluded
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self):
@@ -297,12 +299,19 @@ class Scene:
         end_time = c.number("end_time", c.require("", d, "end_time"), gt=0)
         out_dt = c.number("output_interval", d.get("output_interval", end_time / 20), gt=0)
 
-        dom = c.table("domain", c.require("", d, "domain"), ("min", "max", "origin"))
+        dom = c.table("domain", c.require("", d, "domain"),
+                      ("min", "max", "origin", "periodic", "exclude_outside"))
         dmin = c.vector("domain.min", c.require("domain", dom, "min"), dim)
         dmax = c.vector("domain.max", c.require("domain", dom, "max"), dim)
         if not np.all(dmax > dmin):
             raise c.error("domain.max", f"every coordinate > domain.min {_vlist(dmin)}", dom["max"])
         origin = c.vector("domain.origin", dom.get("origin", _vlist(dmin)), dim)
+        periodic = dom.get("periodic", [])
+        if (not isinstance(periodic, list) or len(set(periodic)) != len(periodic)
+                or not all(a in AXES[:dim] for a in periodic)):
+            raise c.error("domain.periodic", "a list of distinct axes among "
+                          + ", ".join(f'"{a}"' for a in AXES[:dim]), periodic)
+        exclude = c.boolean("domain.exclude_outside", dom.get("exclude_outside", False))
 
         physics = _physics(c, d.get("physics", {}), dim)
         dec = c.table("decomposition", d.get("decomposition", {}), ("axis",))
@@ -327,12 +336,21 @@ class Scene:
         boundary = [_public(_entry(c, f"boundary[{i}]", e, "boundary", BOUNDARY_TYPES, dim))
                     for i, e in enumerate(_entries(c, d, "boundary", required=False))]
         extra = {k: copy.deepcopy(d[k]) for k in EXTRA_TABLES if k in d}
+        names = [e["name"] for e in boundary if "name" in e]
+        if len(set(names)) != len(names):
+            raise c.error("boundary", "distinct names of [[boundary]] entries", names)
+        if "motion" in extra:  # moving bodies (sphgraph.motion); [[damping]] zones (sphgraph.waves)
+            from . import motion
+            extra["motion"] = motion.validate(c, extra["motion"], dim, set(names))
+        if "damping" in extra:
+            from . import waves
+            extra["damping"] = waves.validate_damping(c, extra["damping"], dim)
 
         scene = cls(name=name, dim=dim, dp=dp, end_time=end_time, output_interval=out_dt,
                     domain_min=dmin, domain_max=dmax, physics=physics,
                     decomposition_axis=axis, text="", source=source, lattice_origin=origin,
                     hydrostatic=hydro, jitter=jitter, max_particles=maxp, fluid=fluid, boundary=boundary,
-                    extra=extra)
+                    extra=extra, periodic=tuple(periodic), exclude_outside=exclude)
         scene._check_extent(c)
         scene.text = text if text is not None else (
             f"# sphgraph scene, emitted from {source}\n" + dumps_toml(scene.to_dict()))
@@ -389,6 +407,10 @@ class Scene:
             "fluid": copy.deepcopy(self.fluid),
             "boundary": copy.deepcopy(self.boundary),
         }
+        if self.periodic:
+            d["domain"]["periodic"] = list(self.periodic)
+        if self.exclude_outside:
+            d["domain"]["exclude_outside"] = True
         d.update(copy.deepcopy(self.extra))
         return d
 
@@ -437,6 +459,29 @@ class Scene:
                 "fluid", "at least one fluid particle outside the boundaries", 0)
         self._cache["lattice"] = (grid.indices(bkeys), fidx)
         return self._cache["lattice"]
+
+    def boundary_masks(self) -> dict:
+        """{name: boolean mask over the boundary particles (ids 0..nb-1)} of named entries.
+
+        A point shared by several entries belongs to each of them.
+        """
+        if "masks" in self._cache:
+            return self._cache["masks"]
+        bidx, _ = self._lattice()
+        lat = self._lattice_def()
+        out = {}
+        if len(bidx):
+            grid = geo.Grid(bidx.min(axis=0), bidx.max(axis=0))
+            bkeys = grid.point_keys(bidx)
+            for e in self.boundary:
+                if "name" not in e:
+                    continue
+                ekeys = np.unique(np.concatenate(
+                    [grid.point_keys(i) for i in _boundary_points(e, lat, self.dim, grid)] or
+                    [np.empty(0, np.int64)]))
+                out[e["name"]] = geo.contains(ekeys, bkeys)
+        self._cache["masks"] = out
+        return out
 
     def count_particles(self) -> tuple:
         """(n_fluid, n_boundary) of :meth:`build_particles` (computed on indices only)."""
@@ -498,6 +543,8 @@ class Scene:
         nb, nf = len(bidx), len(fidx)
         n = nb + nf
         kind = np.concatenate([np.full(nb, FIXED, np.int8), np.full(nf, FLUID, np.int8)])
+        for m in self.extra.get("motion") or ():  # bodies moved by [[motion]] are kind 2
+            kind[:nb][self.boundary_masks()[m["body"]]] = MOVING
         rho0 = self.physics.rho0
         rho = np.full(n, rho0, dtype=np.float64)
         if self.hydrostatic:
@@ -567,6 +614,10 @@ def _entry(c: _Checker, key, e, group, types, dim) -> dict:
     lo = c.vector(f"{key}.min", c.require(key, e, "min"), dim)
     hi = c.vector(f"{key}.max", c.require(key, e, "max"), dim)
     out = {"type": t, "min": _vlist(lo), "max": _vlist(hi), "_min": lo, "_max": hi}
+    if "name" in e:
+        if not isinstance(e["name"], str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", e["name"]):
+            raise c.error(f"{key}.name", "a name of letters, digits, '.', '_' or '-'", e["name"])
+        out["name"] = e["name"]
     if t == "wall":
         flat = np.flatnonzero(hi == lo)
         if len(flat) != 1 or np.any(np.delete(hi, flat) <= np.delete(lo, flat)):
@@ -671,3 +722,14 @@ def dumps_toml(d: dict) -> str:
     lines: list = []
     _emit(d, [], lines)
     return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _boundary_points(e: dict, lat: geo.Lattice, dim: int, grid: "geo.Grid") -> list:
+    """Index arrays ([n, dim]) of one entry's points clipped to ``grid``'s window."""
+    out = []
+    hi_w = grid.lo + np.asarray(grid.shape) - 1
+    for lo, hi in _boundary_boxes(e, lat, dim):
+        lo, hi = np.maximum(lo, grid.lo), np.minimum(hi, hi_w)
+        if geo.box_count((lo, hi)):
+            out.append(grid.indices(grid.box_keys((lo, hi))))
+    return out

@@ -149,11 +149,13 @@ class Schedule:
                 return label[:-2] + "_1"
         return label
 
-    def program(self, rank: int, nranks: int, stages: int, user_tasks=(), rebalance=False) -> list[Task]:
-        """The ordered task instances of one rank (skipping kinds its role lacks)."""
-        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance)[0]
+    def program(self, rank: int, nranks: int, stages: int, user_tasks=(), rebalance=False,
+                motion=False) -> list[Task]:
+        """The ordered task instances of one rank (skipping kinds its role lacks;
+        `rebalance` / `motion` place those conditional kinds)."""
+        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance, motion)[0]
 
-    def _expand(self, rank, nranks, stages, users: dict, rebalance):
+    def _expand(self, rank, nranks, stages, users: dict, rebalance, motion=False):
         from .graph.tasks import make_task
         labels = [self._swapped(x) for x in self.order]
 
@@ -181,7 +183,7 @@ class Schedule:
                                      lane=self.lanes.get(lab, u.lane), fn=u.fn))
                     continue
                 kind = TaskKind.from_label(lab)
-                if kind is TaskKind.REBALANCE and not rebalance:
+                if (kind is TaskKind.REBALANCE and not rebalance) or (kind is TaskKind.MOTION and not motion):
                     continue
                 if not applicable(kind, rank, nranks):
                     continue
@@ -191,10 +193,10 @@ class Schedule:
                                       lane=self.lanes.get(lab)))
         return prog, labels
 
-    def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False) -> list[Task]:
+    def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False, motion=False) -> list[Task]:
         """The reference order with user tasks inserted where the schedule puts them."""
-        prog = self.program(rank, nranks, stages, user_tasks, rebalance)
-        builtin = canonical_tasks(rank, nranks, stages, rebalance)
+        prog = self.program(rank, nranks, stages, user_tasks, rebalance, motion)
+        builtin = canonical_tasks(rank, nranks, stages, rebalance, motion)
         users = [t for t in prog if not isinstance(t.kind, TaskKind)]
         out = list(builtin)
         for u in users:
@@ -205,7 +207,7 @@ class Schedule:
         return out
 
     # ------------------------------------------------------------------ validation
-    def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False) -> None:
+    def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False, motion=False) -> None:
         """Prove the schedule for `ranks` ranks; raise ScheduleError listing every problem."""
         src = self.source
         users = {u.name: u for u in user_tasks}
@@ -225,14 +227,14 @@ class Schedule:
             raise ScheduleError(problems)
         programs = {}
         for r in range(ranks):
-            prog = self.program(r, ranks, stages, user_tasks, rebalance)
+            prog = self.program(r, ranks, stages, user_tasks, rebalance, motion)
             programs[r] = prog
             names = [t.name for t in prog]
-            for t in canonical_tasks(r, ranks, stages, rebalance):
+            for t in canonical_tasks(r, ranks, stages, rebalance, motion):
                 if t.name not in names:
                     problems.append(f"{src}: order: missing task {t.label!r} (needed as {t.name} on rank {r} "
                                     f"of {ranks})")
-            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance))
+            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance, motion))
             for v in order_violations(g, names):
                 problems.append(f"{src}: order: rank {r}: {v}")
         problems = list(dict.fromkeys(problems))

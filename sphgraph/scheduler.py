@@ -73,14 +73,14 @@ class Scheduler:
     """Runs steps of `schedule` for the ranks a comm backend drives."""
 
     def __init__(self, schedule: Schedule, comm, contexts: list[RankContext], stages: int,
-                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0):
+                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0, motion: bool = False):
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
-        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False)
+        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False, motion)
                          for c in contexts}
         # `rebalance` is conditional: a step that checks the balance runs the program with it
-        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True)
+        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True, motion)
                                    for c in contexts} if rebalance else self.programs
         self.times = TaskTimes()
         self.t_origin = t_origin

@@ -93,7 +93,10 @@ class Simulation:
                                                  balance, source=scene.source)
         self.rebalance = (self.nranks > 1 and self.balance_cfg.enabled
                           and "rebalance" in self.schedule.order)
-        self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance)
+        from .features import Features
+        self.features = Features(scene)  # moving bodies, damping, periodic...: only what the scene asks
+        self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
+                               motion=self.features.motion_task)
         self.compute = compute_cls()
         consts = scene.constants
         self.consts = consts
@@ -104,7 +107,8 @@ class Simulation:
             particles = scene.build_particles(self.dtype)
         elif isinstance(particles, (list, tuple)):
             from .particles import Particles
-            blocks = list(particles) if len(particles) == self.nranks and cuts is not None else None
+            keep = len(particles) == self.nranks and (cuts is not None or self.nranks == 1)
+            blocks = list(particles) if keep else None
             particles = Particles.concat(particles)
             if blocks is None:   # another rank count: re-decompose from the rows in id order
                 particles = particles.take(np.argsort(particles.id, kind="stable"))
@@ -146,11 +150,13 @@ class Simulation:
                                              integrator=self.integrator, fixed_dt=fixed_dt, scene=scene,
                                              balancer=bal))
         self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
-                                   rebalance=self.rebalance)
+                                   rebalance=self.rebalance, motion=self.features.motion_task)
         self.lo = np.asarray(scene.domain_min, float)
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0
         self.time = 0.0
+        if self.features.active:
+            self.features.attach(self, particles)
         from .invariants import Invariants
         self.invariants = Invariants(self) if invariants else None
 
@@ -172,6 +178,7 @@ class Simulation:
 
     def check(self) -> None:
         """Stop on NaN, a particle outside the domain or a density out of bounds."""
+        self.features.exclude(self)   # [domain] exclude_outside: remove and count instead
         found = None
         for c in self.contexts:
             bad = self.compute.check(c.state, self.lo, self.hi)

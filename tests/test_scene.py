@@ -248,9 +248,12 @@ def test_dumps_toml_plain_types():
 
 def test_extra_tables_are_kept_raw():
     assert set(EXTRA_TABLES) >= {"balance", "probes", "forces", "motion"}
-    d = dam2d(balance={"every": 50, "anything": ["goes"]}, motion=[{"body": 1}])
+    d = dam2d(balance={"every": 50, "anything": ["goes"]}, forces=[{"body": 1}])
     s = Scene.from_dict(d)
-    assert s.extra == {"balance": d["balance"], "motion": d["motion"]}
+    assert s.extra == {"balance": d["balance"], "forces": d["forces"]}
+    # [[motion]] is validated by sphgraph.motion now (tests/test_motion.py)
+    with pytest.raises(InputError, match=r"motion\[0\]\.type"):
+        Scene.from_dict(dam2d(motion=[{"body": 1}]))
 
 
 def test_default_name_and_output_interval(tmp_path):

@@ -24,6 +24,7 @@ class TaskKind(Enum):
     DT_LOCAL = ("dt_local", "PU", "compute", False)
     DT_ALLREDUCE = ("dt_allreduce", "SynchroDt", "comm", False)
     INTEGRATE = ("integrate", "PU", "compute", True)
+    MOTION = ("motion", "Motion", "compute", True)    # conditional: scenes with moving bodies etc.
     REBALANCE = ("rebalance", "Balancing", "compute", False)
 
     def __init__(self, label, timer, lane, per_stage):
@@ -50,5 +51,9 @@ NEEDS_NEIGHBOUR = {
     TaskKind.RECV_HALO_1: 1, TaskKind.FORCES_HALO_1: 1,
     TaskKind.RECV_HALO_2: 2, TaskKind.FORCES_HALO_2: 2,
 }
+# Kinds placed only when the run asks for them (a flag of Schedule.program):
+# rebalance on check steps, motion when the scene has moving bodies, damping
+# zones or periodic axes (sphgraph.features).
+CONDITIONAL = (TaskKind.REBALANCE, TaskKind.MOTION)
 # dt is computed once per step, from the first force stage
 FIRST_STAGE_ONLY = (TaskKind.DT_LOCAL, TaskKind.DT_ALLREDUCE)

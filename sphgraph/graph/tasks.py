@@ -9,6 +9,11 @@ Data names (what tasks read, write or accumulate):
   dt_local, dt  the rank's dt proposal and the global dt
   edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
 
+`motion@s` (only when the scene asks, see sphgraph.features) runs after
+`integrate@s`: prescribed positions/velocities of moving bodies at the stage's end
+time, damping zones and periodic wrapping -- it reads dt and writes particles, so
+the next stage's edges and cells see the moved bodies.
+
 The canonical order below is the step as a sequential program; dependencies
 come from it and the declarations (`build.rank_graph`), schedules reorder it.
 """
@@ -28,7 +33,7 @@ def tag_edges(stage: int, direction: int) -> int:
 
 PRE = (K.SEND_DISPLACED, K.RECV_DISPLACED, K.BUILD_CELLS)
 STAGE = (K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, K.FORCES_HALO_1,
-         K.FORCES_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.INTEGRATE)
+         K.FORCES_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.INTEGRATE, K.MOTION)
 POST = (K.REBALANCE,)
 
 
@@ -85,18 +90,21 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
     if kind is K.INTEGRATE:
         return Task(kind, s, reads=(f"forces@{s}", "dt"), writes=("particles",), lane=lane,
                     fn=run_integrate)
+    if kind is K.MOTION:
+        return Task(kind, s, reads=("dt",), writes=("particles",), lane=lane, fn=run_motion)
     if kind is K.REBALANCE:
         return Task(kind, None, reads=("particles",), writes=("particles", "cells"), lane=lane,
                     fn=run_rebalance, collective=True)
     raise ValueError(kind)
 
 
-def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False) -> list[Task]:
+def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False,
+                    motion: bool = False) -> list[Task]:
     """The step as a sequential program for one rank (the reference order)."""
     out = [make_task(k, None, rank, nranks) for k in PRE if applicable(k, rank, nranks)]
     for s in range(1, stages + 1):
         for k in STAGE:
-            if k in FIRST_STAGE_ONLY and s != 1:
+            if (k in FIRST_STAGE_ONLY and s != 1) or (k is K.MOTION and not motion):
                 continue
             if applicable(k, rank, nranks):
                 out.append(make_task(k, s if k.per_stage else None, rank, nranks))
@@ -138,6 +146,9 @@ def run_recv_halo(ctx, task):
 
 def run_forces(ctx, task):
     ctx.compute.forces(ctx.state, task.meta["part"])
+    features = getattr(ctx, "features", None)
+    if features is not None and task.meta["part"] == "interior":
+        features.after_interior(ctx)   # periodic images: own rows, so part of the interior task
 
 
 def run_dt_local(ctx, task):
@@ -152,6 +163,10 @@ def run_dt_allreduce(ctx, task):
 def run_integrate(ctx, task):
     ctx.compute.reduce_forces(ctx.state, task.stage)
     ctx.compute.integrate(ctx.state, task.stage, ctx.integrator, ctx.euler)
+
+
+def run_motion(ctx, task):
+    ctx.features.post_integrate(ctx, task.stage)
 
 
 def run_rebalance(ctx, task):

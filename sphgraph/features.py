@@ -1,0 +1,120 @@
+"""Scene features beyond fluid in fixed boxes, switched on by the scene and absent otherwise.
+
+One object per run holds what the scene asks for -- moving bodies (:mod:`.motion`),
+damping zones (:mod:`.waves`), periodic axes (:mod:`.periodic`), exclusion of
+particles that leave the domain, particle shifting (:mod:`.shifting`) -- and the
+solver calls it at fixed points:
+
+* ``motion`` task (after ``integrate`` of each stage; placed in the step graph only
+  when :attr:`Features.motion_task` is true): :meth:`post_integrate`;
+* ``forces_interior``: :meth:`after_interior` adds the periodic-image force part;
+* the end-of-step check: :meth:`exclude` removes and counts particles out of bounds.
+
+A scene without any of them gets ``Features.none`` behaviour: no extra task, no work.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class Features:
+    def __init__(self, scene):
+        self.scene = scene
+        self.motion = None
+        self.damping = None
+        self.periodic = None
+        self.shifting = None
+        self.exclude_outside = bool(scene.exclude_outside)
+        self.excluded = []          # (step, time, id, cause) rows of this process's ranks
+        self.stages = 1 if scene.physics.integrator == "verlet" else 2
+
+    @property
+    def motion_task(self) -> bool:
+        """Whether the step graph needs the ``motion`` task."""
+        s = self.scene
+        return bool(s.extra.get("motion") or s.extra.get("damping") or s.periodic
+                    or s.extra.get("shifting"))
+
+    @property
+    def active(self) -> bool:
+        return self.motion_task or self.exclude_outside
+
+    def attach(self, sim, particles) -> None:
+        """Build the features from the scene's initial ``particles`` and hook them to every rank."""
+        from .motion import Motion
+        from .waves import Damping
+        s = self.scene
+        self.motion = Motion.from_scene(s, particles)
+        self.damping = Damping.from_scene(s)
+        if s.periodic:
+            from .periodic import Periodic
+            self.periodic = Periodic.from_scene(s, sim)
+            self.periodic.attach(sim)
+        if s.extra.get("shifting"):
+            from .shifting import Shifting
+            self.shifting = Shifting.from_scene(s)
+        for c in sim.contexts:
+            c.features = self
+            c.state.extra["excluded_ids"] = np.empty(0, np.int64)
+
+    # ------------------------------------------------------------------ hooks
+    def post_integrate(self, ctx, stage: int) -> None:
+        """The ``motion`` task: bodies at the stage's end time; damping, shifting and
+        periodic wrapping once the step is complete (last stage)."""
+        st = ctx.state
+        last = stage >= self.stages
+        t = st.time + (st.dt if last else 0.5 * st.dt)
+        if self.motion is not None:
+            self.motion.move(st, t)
+        if last:
+            if self.shifting is not None:
+                self.shifting.apply(ctx)
+            if self.damping is not None:
+                self.damping.apply(st, st.dt)
+            if self.periodic is not None:
+                self.periodic.wrap(st)
+
+    def after_interior(self, ctx) -> None:
+        if self.periodic is not None:
+            self.periodic.image_forces(ctx)
+
+    def exclude(self, sim) -> None:
+        """Remove particles outside the domain (non-periodic axes) or, fluid only, outside
+        [rho_min, rho_max]; count them in ``state.extra["excluded_ids"]``."""
+        if not self.exclude_outside:
+            return
+        ph = self.scene.physics
+        for c in sim.contexts:
+            st = c.state
+            p = st.particles
+            x = np.asarray(p.pos)
+            out = np.zeros(p.n, bool)
+            for a in range(p.dim):
+                if self.periodic is not None and a in self.periodic.axes:
+                    continue
+                out |= (x[:, a] < sim.lo[a]) | (x[:, a] > sim.hi[a])
+            cause = np.where(out, 2, 0)
+            bad_rho = (p.kind == 0) & ((p.rho < ph.rho_min) | (p.rho > ph.rho_max)) & ~out
+            cause[bad_rho] = 3
+            rows = np.nonzero(cause)[0]
+            if len(rows) == 0:
+                continue
+            for r in rows:
+                self.excluded.append((sim.step_count, sim.time, int(p.id[r]), int(cause[r])))
+            st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
+            st.particles = p.take(np.nonzero(cause == 0)[0])
+            sim.compute.prepare(st)
+
+    def exclusions(self, sim) -> dict | None:
+        """Every rank's exclusions gathered (root), sorted by (step, id); None elsewhere."""
+        rows = self.excluded
+        if hasattr(sim.comm, "gather") and len(sim.comm.local_ranks) < sim.nranks:
+            parts = sim.comm.gather(rows)
+            if parts is None:
+                return None
+            rows = [r for p in parts for r in p]
+        rows = sorted(rows, key=lambda r: (r[0], r[2]))
+        return {"step": np.array([r[0] for r in rows], np.int64),
+                "time": np.array([r[1] for r in rows], float),
+                "id": np.array([r[2] for r in rows], np.int64),
+                "cause": np.array([r[3] for r in rows], np.int8)}
