@@ -41,22 +41,30 @@ class Invariants:
     """Conservation checks of one `Simulation` (created by it)."""
 
     def __init__(self, sim):
+        self.n_excluded = 0
         self.host = not hasattr(sim.compute, "sync_host")
         self.n0, self.s10, self.s20 = self._global(sim)
         self.min0 = self.max0 = None   # of the id set, known at the first full check (root)
 
     # -- global sums ------------------------------------------------------------------
     def _global(self, sim):
-        n, s1, s2 = 0, 0, 0
+        """(count, id sum, id sum of squares) over every rank, counting particles that a
+        scene's ``domain.exclude_outside`` removed (``state.extra["excluded_ids"]``) too."""
+        n, s1, s2, nx = 0, 0, 0, 0
         for c in sim.contexts:
             p = c.state.particles
-            n += p.n
+            ex = c.state.extra.get("excluded_ids")
+            nx += 0 if ex is None else len(ex)
+            n += p.n + (0 if ex is None else len(ex))
             if self.host:
-                a, b = _id_sums(p.id)
-                s1, s2 = (s1 + a) % 2 ** 64, (s2 + b) % 2 ** 64
+                for ids in (p.id, ex):
+                    if ids is not None and len(ids):
+                        a, b = _id_sums(np.asarray(ids))
+                        s1, s2 = (s1 + a) % 2 ** 64, (s2 + b) % 2 ** 64
         if len(sim.comm.local_ranks) < sim.nranks:     # MPI: one rank per process
-            tot = sim.comm.allreduce(np.array([n, s1, s2], dtype=_U), "sum")
-            n, s1, s2 = (int(x) for x in np.asarray(tot, dtype=_U))
+            tot = sim.comm.allreduce(np.array([n, s1, s2, nx], dtype=_U), "sum")
+            n, s1, s2, nx = (int(x) for x in np.asarray(tot, dtype=_U))
+        self.n_excluded = nx
         return n, s1, s2
 
     # -- per step ---------------------------------------------------------------------
@@ -106,6 +114,10 @@ class Invariants:
                 dup = np.flatnonzero(d == 0)
                 if len(dup):
                     return f"particle id {int(ids[dup[0]])} appears twice", int(ids[dup[0]])
+        if self.n_excluded:     # some rows were removed on purpose: count them, no id sums
+            if len(ids) + self.n_excluded != self.n0:
+                return f"{len(ids)} particles and {self.n_excluded} excluded, expected {self.n0}", None
+            return None
         if self.min0 is None and len(ids) == self.n0:
             self.min0, self.max0 = int(ids[0]), int(ids[-1])
         s1, s2 = _id_sums(ids)
