@@ -98,12 +98,13 @@ class Simulation:
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
                                motion=self.features.motion_task)
         self.compute = compute_cls()
+        if particles is None:   # before anything of the scene's size is allocated (scene.constants is)
+            from .invariants import check_memory
+            check_memory(scene, self.dtype)
         consts = scene.constants
         self.consts = consts
         blocks = None
         if particles is None:
-            from .invariants import check_memory
-            check_memory(scene, self.dtype)       # before allocating anything of the scene's size
             particles = scene.build_particles(self.dtype)
         elif isinstance(particles, (list, tuple)):
             from .particles import Particles
