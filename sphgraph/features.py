@@ -35,6 +35,10 @@ class Features:
         return bool(s.extra.get("motion") or s.extra.get("damping") or s.periodic
                     or s.extra.get("shifting"))
 
+    def ring(self, axis, nranks: int) -> bool:
+        """Whether the slab chain closes into a ring (the split axis is periodic)."""
+        return bool(nranks > 1 and axis is not None and "xyz"[axis] in self.scene.periodic)
+
     @property
     def active(self) -> bool:
         return self.motion_task or self.exclude_outside

@@ -150,12 +150,14 @@ class Schedule:
         return label
 
     def program(self, rank: int, nranks: int, stages: int, user_tasks=(), rebalance=False,
-                motion=False) -> list[Task]:
+                motion=False, ring=False) -> list[Task]:
         """The ordered task instances of one rank (skipping kinds its role lacks;
-        `rebalance` / `motion` place those conditional kinds)."""
-        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance, motion)[0]
+        `rebalance` / `motion` place those conditional kinds; `ring`: the slab chain is
+        closed, the periodic split axis of sphgraph.periodic)."""
+        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance, motion,
+                            ring)[0]
 
-    def _expand(self, rank, nranks, stages, users: dict, rebalance, motion=False):
+    def _expand(self, rank, nranks, stages, users: dict, rebalance, motion=False, ring=False):
         from .graph.tasks import make_task
         labels = [self._swapped(x) for x in self.order]
 
@@ -185,18 +187,19 @@ class Schedule:
                 kind = TaskKind.from_label(lab)
                 if (kind is TaskKind.REBALANCE and not rebalance) or (kind is TaskKind.MOTION and not motion):
                     continue
-                if not applicable(kind, rank, nranks):
+                if not applicable(kind, rank, nranks, ring):
                     continue
                 if not kind.per_stage and s not in (None, 1):
                     continue  # dt tasks: once per step
                 prog.append(make_task(kind, s if kind.per_stage else None, rank, nranks,
-                                      lane=self.lanes.get(lab)))
+                                      lane=self.lanes.get(lab), ring=ring))
         return prog, labels
 
-    def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False, motion=False) -> list[Task]:
+    def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False, motion=False,
+                  ring=False) -> list[Task]:
         """The reference order with user tasks inserted where the schedule puts them."""
-        prog = self.program(rank, nranks, stages, user_tasks, rebalance, motion)
-        builtin = canonical_tasks(rank, nranks, stages, rebalance, motion)
+        prog = self.program(rank, nranks, stages, user_tasks, rebalance, motion, ring)
+        builtin = canonical_tasks(rank, nranks, stages, rebalance, motion, ring)
         users = [t for t in prog if not isinstance(t.kind, TaskKind)]
         out = list(builtin)
         for u in users:
@@ -207,7 +210,8 @@ class Schedule:
         return out
 
     # ------------------------------------------------------------------ validation
-    def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False, motion=False) -> None:
+    def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False, motion=False,
+                 ring=False) -> None:
         """Prove the schedule for `ranks` ranks; raise ScheduleError listing every problem."""
         src = self.source
         users = {u.name: u for u in user_tasks}
@@ -227,14 +231,14 @@ class Schedule:
             raise ScheduleError(problems)
         programs = {}
         for r in range(ranks):
-            prog = self.program(r, ranks, stages, user_tasks, rebalance, motion)
+            prog = self.program(r, ranks, stages, user_tasks, rebalance, motion, ring)
             programs[r] = prog
             names = [t.name for t in prog]
-            for t in canonical_tasks(r, ranks, stages, rebalance, motion):
+            for t in canonical_tasks(r, ranks, stages, rebalance, motion, ring):
                 if t.name not in names:
                     problems.append(f"{src}: order: missing task {t.label!r} (needed as {t.name} on rank {r} "
                                     f"of {ranks})")
-            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance, motion))
+            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance, motion, ring))
             for v in order_violations(g, names):
                 problems.append(f"{src}: order: rank {r}: {v}")
         problems = list(dict.fromkeys(problems))

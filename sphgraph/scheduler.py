@@ -73,14 +73,15 @@ class Scheduler:
     """Runs steps of `schedule` for the ranks a comm backend drives."""
 
     def __init__(self, schedule: Schedule, comm, contexts: list[RankContext], stages: int,
-                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0, motion: bool = False):
+                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0, motion: bool = False,
+                 ring: bool = False):
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
-        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False, motion)
+        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False, motion, ring)
                          for c in contexts}
         # `rebalance` is conditional: a step that checks the balance runs the program with it
-        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True, motion)
+        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True, motion, ring)
                                    for c in contexts} if rebalance else self.programs
         self.times = TaskTimes()
         self.t_origin = t_origin

@@ -151,7 +151,8 @@ class Simulation:
                                              integrator=self.integrator, fixed_dt=fixed_dt, scene=scene,
                                              balancer=bal))
         self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
-                                   rebalance=self.rebalance, motion=self.features.motion_task)
+                                   rebalance=self.rebalance, motion=self.features.motion_task,
+                                   ring=self.features.ring(self.axis, self.nranks))
         self.lo = np.asarray(scene.domain_min, float)
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0

@@ -42,37 +42,58 @@ def neighbours(rank: int, nranks: int) -> list[int]:
     return [d for d in (-1, 1) if 0 <= rank + d < nranks]
 
 
-def applicable(kind: K, rank: int, nranks: int) -> bool:
+def links(rank: int, nranks: int, ring: bool = False) -> list[tuple[int, int]]:
+    """(direction, rank offset) of each neighbour: direction -1 lower, +1 upper. In a
+    ring (periodic split axis) the end ranks are neighbours: rank 0's lower is the last."""
+    out = []
+    for d in (-1, 1):
+        if 0 <= rank + d < nranks:
+            out.append((d, d))
+        elif ring and nranks > 1:
+            out.append((d, (rank + d) % nranks - rank))
+    return out
+
+
+def tag_displaced(direction: int, ring: bool = False) -> int:
+    """Displaced rows sent towards `direction`; a 2-rank ring needs one tag per direction."""
+    return TAG_DISPLACED if not ring else (2 if direction < 0 else 3)
+
+
+def applicable(kind: K, rank: int, nranks: int, ring: bool = False) -> bool:
     need = NEEDS_NEIGHBOUR.get(kind)
     if need is None:
         return True
-    if need == 0:
+    if need == 0 or (ring and nranks > 1):
         return nranks > 1
     return (rank > 0) if need == 1 else (rank < nranks - 1)
 
 
-def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | None = None) -> Task:
+def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | None = None,
+              ring: bool = False) -> Task:
     """A built-in task instance with its access declarations and messages."""
     s = stage
     lane = lane or kind.default_lane
-    nb = neighbours(rank, nranks)
+    nb = links(rank, nranks, ring)
+    dirs = {"dirs": tuple(d for d, _ in nb)}
     if kind is K.SEND_DISPLACED:
         return Task(kind, None, reads=("particles",), writes=("particles", "displaced"), lane=lane,
-                    fn=run_send_displaced, sends=tuple(Message(d, TAG_DISPLACED) for d in nb))
+                    fn=run_send_displaced, sends=tuple(Message(o, tag_displaced(d, ring)) for d, o in nb),
+                    meta=dirs)
     if kind is K.RECV_DISPLACED:
         return Task(kind, None, writes=("particles",), lane=lane, fn=run_recv_displaced,
-                    recvs=tuple(Message(d, TAG_DISPLACED) for d in nb))
+                    recvs=tuple(Message(o, tag_displaced(-d, ring)) for d, o in nb))
     if kind is K.BUILD_CELLS:
         return Task(kind, None, writes=("particles", "cells"), lane=lane, fn=run_build_cells)
     if kind is K.SEND_EDGES:
         return Task(kind, s, reads=("particles", "cells"), writes=(f"edges@{s}",), lane=lane,
-                    fn=run_send_edges, sends=tuple(Message(d, tag_edges(s, d)) for d in nb))
+                    fn=run_send_edges, sends=tuple(Message(o, tag_edges(s, d)) for d, o in nb), meta=dirs)
     if kind in (K.RECV_HALO_1, K.RECV_HALO_2):
         side = 1 if kind is K.RECV_HALO_1 else 2
         d = -1 if side == 1 else 1
+        o = dict(nb)[d]
         # the neighbour below sent its edge "up" (+1), the one above "down" (-1)
         return Task(kind, s, writes=(f"halo_{side}",), lane=lane, fn=run_recv_halo,
-                    recvs=(Message(d, tag_edges(s, -d)),), meta={"side": side})
+                    recvs=(Message(o, tag_edges(s, -d)),), meta={"side": side})
     if kind is K.FORCES_INTERIOR:
         return Task(kind, s, reads=("particles", "cells"), accumulates=(f"forces@{s}",), lane=lane,
                     fn=run_forces, meta={"part": "interior"})
@@ -99,15 +120,15 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
 
 
 def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False,
-                    motion: bool = False) -> list[Task]:
+                    motion: bool = False, ring: bool = False) -> list[Task]:
     """The step as a sequential program for one rank (the reference order)."""
-    out = [make_task(k, None, rank, nranks) for k in PRE if applicable(k, rank, nranks)]
+    out = [make_task(k, None, rank, nranks, ring=ring) for k in PRE if applicable(k, rank, nranks, ring)]
     for s in range(1, stages + 1):
         for k in STAGE:
             if (k in FIRST_STAGE_ONLY and s != 1) or (k is K.MOTION and not motion):
                 continue
-            if applicable(k, rank, nranks):
-                out.append(make_task(k, s if k.per_stage else None, rank, nranks))
+            if applicable(k, rank, nranks, ring):
+                out.append(make_task(k, s if k.per_stage else None, rank, nranks, ring=ring))
     if rebalance and nranks > 1:
         out.append(make_task(K.REBALANCE, None, rank, nranks))
     return out
@@ -118,8 +139,8 @@ def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False
 
 def run_send_displaced(ctx, task):
     out = ctx.domain.take_displaced(ctx.state)     # {-1: Particles, +1: Particles}
-    for m in task.sends:
-        ctx.comm.isend(ctx.rank + m.peer, m.tag, out[m.peer])
+    for m, d in zip(task.sends, task.meta["dirs"]):
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, out[d])
 
 
 def run_recv_displaced(ctx, task):
@@ -133,8 +154,8 @@ def run_build_cells(ctx, task):
 
 
 def run_send_edges(ctx, task):
-    for m in task.sends:
-        ctx.comm.isend(ctx.rank + m.peer, m.tag, ctx.domain.edge(ctx.state, m.peer))
+    for m, d in zip(task.sends, task.meta["dirs"]):
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, ctx.domain.edge(ctx.state, d))
 
 
 def run_recv_halo(ctx, task):
