@@ -80,6 +80,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("outdir")
     p.add_argument("--chrome", required=True, help="write Chrome trace-event JSON (Perfetto)")
 
+    p = sub.add_parser("validate", help="run a validation case against its reference data "
+                                          "(exit 0 within the case's tolerances, 1 outside)")
+    p.add_argument("case", nargs="?", help="case name (--list) or case TOML file")
+    p.add_argument("--list", action="store_true", help="name the cases")
+    p.add_argument("--dp", type=float, help="particle spacing (default: the case's)")
+    p.add_argument("--backend", default="numba-cpu")
+    p.add_argument("--precision", choices=["float32", "float64"])
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="physics override, e.g. --set integrator=symplectic (repeatable)")
+    p.add_argument("--out", default="out/validate", help="directory of the comparison plot PNG")
+
+    p = sub.add_parser("study", help="sweep resolution and methods of a case: error against wall time "
+                                       "(CSV + log-log PNG with the Pareto front)")
+    p.add_argument("case")
+    p.add_argument("--dp", help="comma-separated spacings (default: the case's study list)")
+    for k in ("integrator", "kernel", "diffusion", "precision", "backend"):
+        p.add_argument(f"--{k}", help=f"comma-separated {k} values")
+    p.add_argument("--out", help="directory (default out/study/<case>)")
+    p.add_argument("--target-error", type=float, help="name the cheapest configuration with error <= E")
+    p.add_argument("--from-csv", help="skip the runs: read an earlier study CSV")
+
     p = sub.add_parser("plot", help="figures from a run")
     psub = p.add_subparsers(dest="what", parser_class=_Parser)
     psub.required = True
@@ -88,6 +109,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--time", type=float)
     q.add_argument("--field", default="pressure")
     q.add_argument("--output", "-o")
+    q = psub.add_parser("stability", help="stability map (CFL x coefsound) from a small sweep")
+    q.add_argument("--cfl", default="0.1,0.2,0.4,0.8,1.6", help="comma-separated CFL values")
+    q.add_argument("--coefsound", default="5,10,20", help="comma-separated coefsound values")
+    q.add_argument("--steps", type=int, default=300, help="steps per run")
+    q.add_argument("--output", "-o", default="stability.png")
     for name, helptext in (("timeline", "per-rank Gantt chart of the tasks (paper Fig. 2)"),
                            ("breakdown", "share of each task per rank (paper Figs. 11-12)"),
                            ("balance", "fluid share and force time per rank over time (paper Figs. 5-6)")):
@@ -210,7 +236,14 @@ def cmd_trace(args) -> int:
 
 def cmd_plot(args) -> int:
     from . import plots
-    if args.what == "snapshot":
+    if args.what == "stability":
+        from .stability import stability_map
+        cells = stability_map(_floats(args.cfl, "--cfl"), _floats(args.coefsound, "--coefsound"), steps=args.steps)
+        for c in cells:
+            print(f"cfl {c['cfl']:g} coefsound {c['coefsound']:g}: {c['verdict']}"
+                  + (f" ({c['detail']})" if c.get("detail") else ""))
+        path = plots.plot_stability(cells, args.output)
+    elif args.what == "snapshot":
         path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
     elif args.what == "balance":
         path = plots.plot_balance(args.outdir, path=args.output)
@@ -224,7 +257,53 @@ def cmd_plot(args) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "bench": cmd_bench, "info": cmd_info, "schedule": cmd_schedule,
+def _floats(text, flag):
+    try:
+        return [float(x) for x in str(text).split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"{flag}: expected comma-separated numbers, got {text!r}") from None
+
+
+def _overrides(items):
+    out = {}
+    for it in items:
+        k, sep, v = it.partition("=")
+        if not sep or not k:
+            raise InputError(f"--set: expected KEY=VALUE, got {it!r}")
+        for conv in (int, float, str):
+            try:
+                out[k] = conv(v)
+                break
+            except ValueError:
+                continue
+    return out
+
+
+def cmd_validate(args) -> int:
+    from .validation.cases import list_cases, load_case, run_case
+    if args.list or not args.case:
+        for name in list_cases():
+            print(f"{name:12s} {load_case(name).title}")
+        return 0
+    res = run_case(args.case, dp=args.dp, backend=args.backend, precision=args.precision,
+                   overrides=_overrides(args.set), out=args.out)
+    print(res.report())
+    if res.plot_path:
+        print(f"wrote {res.plot_path}")
+    return 0 if res.ok else 1
+
+
+def cmd_study(args) -> int:
+    from .study import run_study
+    axes = {k: getattr(args, k).split(",") for k in ("integrator", "kernel", "diffusion", "precision", "backend")
+            if getattr(args, k)}
+    out = run_study(args.case, dps=_floats(args.dp, "--dp") if args.dp else None, axes=axes, out=args.out,
+                    target_error=args.target_error, from_csv=args.from_csv)
+    print(out["summary"])
+    return 0 if args.target_error is None or out.get("best") is not None else 1
+
+
+COMMANDS = {"validate": cmd_validate, "study": cmd_study, "run": cmd_run, "bench": cmd_bench, "info": cmd_info, "schedule": cmd_schedule,
             "trace": cmd_trace, "plot": cmd_plot}
 
 

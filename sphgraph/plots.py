@@ -411,3 +411,95 @@ def plot_efficiency(source, path=None) -> str:
     ax.set_title("parallel efficiency: " + ", ".join(p for p in parts if p), fontsize=10)
     ax.legend(fontsize=7, loc="lower left")
     return _save(fig, path)
+
+
+# ---------------------------------------------------------------------- validation, study, stability
+def plot_validation(result, title: str, path) -> str:
+    """Simulation against reference of one validation case (`sphgraph validate`)."""
+    path = _check_path(path, "validation")
+    fig = _new_figure((7.5, 5.0))
+    ax = fig.subplots()
+    for i, (label, (x, y, style)) in enumerate(result.series.items()):
+        if style == "o":
+            ax.plot(x, y, "o", ms=5, mfc="none", label=label, color=f"C{i}")
+        elif style == ".":
+            ax.plot(x, y, ".", ms=3, label=label, color=f"C{i}")
+        else:
+            ax.plot(x, y, style, lw=1.4, label=label, color=f"C{i}")
+    worst = [c for c in result.checks if not c[4]]
+    ax.set_title(f"{title}\ndp = {result.dp:g}: {'PASS' if result.ok else 'FAIL ' + ', '.join(c[0] for c in worst)}",
+                 fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def pareto_front(cost, err) -> np.ndarray:
+    """Indices of the points no other point beats in both cost and error (sorted by cost)."""
+    cost, err = np.asarray(cost, float), np.asarray(err, float)
+    order = np.argsort(cost, kind="stable")
+    front, best = [], np.inf
+    for i in order:
+        if np.isfinite(err[i]) and err[i] < best:
+            front.append(i)
+            best = err[i]
+    return np.array(front, int)
+
+
+def plot_study(rows: list, path, title: str = "", error_key: str = "error") -> str:
+    """Error against wall time (log-log) of a `sphgraph study`, Pareto front marked."""
+    path = _check_path(path, "study")
+    fig = _new_figure((8.0, 5.5))
+    ax = fig.subplots()
+    ok = [r for r in rows if np.isfinite(r[error_key]) and r["wall_s"] > 0]
+    groups: dict = {}
+    for r in ok:
+        groups.setdefault(f"{r['integrator']}, {r['kernel']}, {r['diffusion']}, {r['precision']}, {r['backend']}",
+                          []).append(r)
+    markers = "osD^v<>ph*"
+    for i, (label, rs) in enumerate(sorted(groups.items())):
+        rs = sorted(rs, key=lambda r: r["dp"])
+        ax.plot([r["wall_s"] for r in rs], [r[error_key] for r in rs], marker=markers[i % len(markers)],
+                ls=":", ms=6, mfc="none", color=f"C{i % 10}", label=label)
+        for r in rs:
+            ax.annotate(f"{r['dp']:g}", (r["wall_s"], r[error_key]), textcoords="offset points",
+                        xytext=(4, 3), fontsize=6, color=f"C{i % 10}")
+    if ok:
+        idx = pareto_front([r["wall_s"] for r in ok], [r[error_key] for r in ok])
+        ax.plot([ok[i]["wall_s"] for i in idx], [ok[i][error_key] for i in idx], "-", color="k", lw=2,
+                alpha=0.35, zorder=0, label="Pareto front")
+        ax.plot([ok[i]["wall_s"] for i in idx], [ok[i][error_key] for i in idx], "s", color="k", ms=9,
+                mfc="none", zorder=0)
+    failed = [r for r in rows if not np.isfinite(r[error_key])]
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time [s] (2 CPU cores unless the backend says otherwise)")
+    ax.set_ylabel(error_key.replace("_", " "))
+    ax.set_title((title or "error against cost") + (f"  ({len(failed)} runs failed)" if failed else ""),
+                 fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=6, loc="best")
+    return _save(fig, path)
+
+
+def plot_stability(cells: list, path, x="cfl", y="coefsound", title="") -> str:
+    """Stability map: one marker per run of a sweep, coloured by the failure detected."""
+    path = _check_path(path, "stability")
+    fig = _new_figure((7.0, 5.0))
+    ax = fig.subplots()
+    kinds = sorted({c["verdict"] for c in cells}, key=lambda v: (v != "stable", v))
+    for i, k in enumerate(kinds):
+        cs = [c for c in cells if c["verdict"] == k]
+        ax.scatter([c[x] for c in cs], [c[y] for c in cs], s=140, marker="s" if k == "stable" else "X",
+                   color="C2" if k == "stable" else f"C{(i + 2) % 10}", label=k, edgecolors="k", linewidths=0.5)
+    for c in cells:
+        if c.get("value") is not None:
+            ax.annotate(f"{c['value']:.2g}", (c[x], c[y]), textcoords="offset points", xytext=(0, 9),
+                        fontsize=6, ha="center")
+    ax.set_xscale("log")
+    ax.set_xlabel(x)
+    ax.set_ylabel(y)
+    ax.set_title(title or f"where the method fails: {x} x {y}", fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)

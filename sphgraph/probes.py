@@ -1,0 +1,281 @@
+"""Probes and body forces sampled while a run steps (`/probes`, `/forces`; DESIGN.md §5).
+
+A scene asks for them with two tables (kept raw in `Scene.extra`, validated here)::
+
+    [probes]
+    interval = 0.001                                   # s between samples; 0 (default) = every step
+    points = [{name = "P1", position = [3.22, 0.12]}]  # pressure and velocity at a point
+    heights = [{name = "H1", position = [1.0]}]        # free-surface height over a horizontal point
+
+    [forces]
+    interval = 0.001
+    bodies = [{name = "tank", min = [-1, -1], max = [2, 2]}]   # boundary particles inside the box
+
+What is measured (DualSPHysics MeasureTool / ComputeForces conventions):
+
+* point value: Shepard-normalised kernel interpolation of the fluid particles within 2h,
+  f(x) = sum_b f_b V_b W(x - x_b) / sum_b V_b W(x - x_b), V_b = m_b / rho_b; a point with
+  no fluid within reach (sum V W < 0.1) reads pressure 0 and velocity 0 (dry).
+* height: the highest z on the vertical line over the point where sum_b V_b W >= 0.5
+  (half-full kernel), searched in steps of dp/4.
+* body force: what the fluid's pressure exerts on the body's boundary particles,
+  F = sum_{b in body} sum_{a fluid} m_a m_b (P_a + P_b)/(rho_a rho_b) (-grad_a W_ab),
+  i.e. minus the pressure force the body puts on the fluid (artificial viscosity left out).
+
+`ProbeSampler.sample(sim)` takes the gathered particles (`Simulation.frame_arrays`, so any
+rank count works); `sphgraph.run` calls it after each step that is due and writes the
+series with `OutputWriter.write_group` at the end (and at each output frame).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import K_WENDLAND, KERNELS, P_AW, P_BW
+from .errors import InputError
+
+__all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor"]
+
+
+# --------------------------------------------------------------------------- kernels (numpy)
+def kernel_w(r, h, aw, kernel="wendland"):
+    q = np.asarray(r) / h
+    if KERNELS.index(kernel) == K_WENDLAND:
+        w = np.clip(1.0 - 0.5 * q, 0.0, None)
+        return aw * w ** 4 * (2.0 * q + 1.0)
+    out = np.where(q < 1.0, aw * (1.0 - 1.5 * q * q + 0.75 * q ** 3), 0.25 * aw * np.clip(2.0 - q, 0, None) ** 3)
+    return np.where(q < 2.0, out, 0.0)
+
+
+def grad_factor(r, h, bw, kernel="wendland"):
+    """F with grad_a W_ab = F (r_a - r_b) (see sphgraph.physics.kernels)."""
+    q = np.asarray(r) / h
+    if KERNELS.index(kernel) == K_WENDLAND:
+        w = np.clip(1.0 - 0.5 * q, 0.0, None)
+        return bw / h * w ** 3
+    qs = np.maximum(q, 1e-12)
+    f = np.where(q < 1.0, bw / h * (-3.0 + 2.25 * q), bw / h * (-0.75 * np.clip(2.0 - q, 0, None) ** 2) / qs)
+    return np.where(q < 2.0, f, 0.0)
+
+
+# --------------------------------------------------------------------------- scene tables
+def _err(source, key, form, value):
+    return InputError(f"{source}: {key}: expected {form}, got {value!r}")
+
+
+def _vec(source, key, v, n):
+    if (not isinstance(v, list) or len(v) != n
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+        raise _err(source, key, f"a list of {n} numbers", v)
+    return np.array(v, float)
+
+
+def _named(source, key, items, fields):
+    if not isinstance(items, list) or not all(isinstance(e, dict) for e in items):
+        raise _err(source, key, "a list of tables", items)
+    names = set()
+    for i, e in enumerate(items):
+        extra = set(e) - set(fields) - {"name"}
+        if extra:
+            raise _err(source, f"{key}[{i}]", f"keys name, {', '.join(fields)}", sorted(extra))
+        name = e.get("name", f"{key.split('.')[-1]}{i}")
+        if not isinstance(name, str) or not name or "/" in name or name in ("time", "step", "attrs") or name in names:
+            raise _err(source, f"{key}[{i}].name", "a unique name without '/'", name)
+        names.add(name)
+    return items
+
+
+def parse(scene) -> dict:
+    """Validated [probes] / [forces] of a scene: {'interval', 'points', 'heights', 'bodies',
+    'force_interval'}; empty lists when the scene asks for nothing."""
+    src = scene.source
+    dim = scene.dim
+    out = {"interval": 0.0, "points": [], "heights": [], "bodies": [], "force_interval": 0.0}
+    for table, allowed in (("probes", ("interval", "points", "heights")), ("forces", ("interval", "bodies"))):
+        t = scene.extra.get(table)
+        if t is None:
+            continue
+        if not isinstance(t, dict):
+            raise _err(src, table, "a table", t)
+        bad = set(t) - set(allowed)
+        if bad:
+            raise _err(src, table, f"keys {', '.join(allowed)}", sorted(bad))
+        iv = t.get("interval", 0.0)
+        if not isinstance(iv, (int, float)) or isinstance(iv, bool) or iv < 0:
+            raise _err(src, f"{table}.interval", "a number >= 0 [s] (0 = every step)", iv)
+        if table == "probes":
+            out["interval"] = float(iv)
+            for i, e in enumerate(_named(src, "probes.points", t.get("points", []), ("position",))):
+                out["points"].append((e.get("name", f"points{i}"),
+                                      _vec(src, f"probes.points[{i}].position", e.get("position"), dim)))
+            for i, e in enumerate(_named(src, "probes.heights", t.get("heights", []), ("position",))):
+                out["heights"].append((e.get("name", f"heights{i}"),
+                                       _vec(src, f"probes.heights[{i}].position", e.get("position"), dim - 1)))
+        else:
+            out["force_interval"] = float(iv)
+            for i, e in enumerate(_named(src, "forces.bodies", t.get("bodies", []), ("min", "max"))):
+                lo = _vec(src, f"forces.bodies[{i}].min", e.get("min"), dim)
+                hi = _vec(src, f"forces.bodies[{i}].max", e.get("max"), dim)
+                if not np.all(hi >= lo):
+                    raise _err(src, f"forces.bodies[{i}].max", "every coordinate >= min", e.get("max"))
+                out["bodies"].append((e.get("name", f"bodies{i}"), lo, hi))
+    return out
+
+
+# --------------------------------------------------------------------------- sampling
+class ProbeSampler:
+    """Samples a scene's probes and body forces; `datasets()` gives the /probes and /forces trees."""
+
+    def __init__(self, scene, spec: dict | None = None):
+        self.spec = spec if spec is not None else parse(scene)
+        k = scene.constants
+        self.kernel = scene.physics.kernel
+        self.h, self.aw, self.bw = k.h, float(k.prm[P_AW]), float(k.prm[P_BW])
+        self.mass_f, self.mass_b = k.mass_fluid, k.mass_bound
+        self.dim = scene.dim
+        self.dp = scene.dp
+        self.zlo, self.zhi = float(scene.domain_min[-1]), float(scene.domain_max[-1])
+        self.rows = {"probes": [], "forces": []}
+        self.next = {"probes": 0.0, "forces": 0.0}
+        self._last_time = {"probes": None, "forces": None}
+
+    @property
+    def active(self) -> bool:
+        s = self.spec
+        return bool(s["points"] or s["heights"] or s["bodies"])
+
+    def due(self, t: float) -> bool:
+        s = self.spec
+        return ((bool(s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12)
+                or (bool(s["bodies"]) and t >= self.next["forces"] - 1e-12))
+
+    def sample(self, sim, arrays=None) -> None:
+        """Sample what is due at `sim.time` (arrays: `sim.frame_arrays()` when not given)."""
+        if not self.due(sim.time):
+            return
+        if arrays is None:
+            arrays = sim.frame_arrays()
+        if arrays is None:   # not the root rank under MPI
+            return
+        self.sample_arrays(sim.time, sim.step_count, arrays)
+
+    def sample_arrays(self, t, step, a) -> None:
+        s = self.spec
+        fl = a["kind"] == 0
+        pos, vel, rho, p = a["position"][fl], a["velocity"][fl], a["density"][fl], a["pressure"][fl]
+        if (s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12:
+            row = {"time": t, "step": step}
+            for name, x in s["points"]:
+                row[name] = self.point(x, pos, vel, rho, p)
+            for name, x in s["heights"]:
+                row[name] = self.height(x, pos, rho)
+            self.rows["probes"].append(row)
+            self.next["probes"] = self._advance(self.next["probes"], s["interval"], t)
+        if s["bodies"] and t >= self.next["forces"] - 1e-12:
+            row = {"time": t, "step": step}
+            bd = ~fl
+            for name, lo, hi in s["bodies"]:
+                row[name] = self.force(lo, hi, a["position"][bd], a["density"][bd], a["pressure"][bd],
+                                       pos, rho, p)
+            self.rows["forces"].append(row)
+            self.next["forces"] = self._advance(self.next["forces"], s["force_interval"], t)
+
+    @staticmethod
+    def _advance(nxt, interval, t):
+        if interval <= 0:
+            return t + 1e-300
+        while nxt <= t + 1e-12:
+            nxt += interval
+        return nxt
+
+    # -- measurements
+    def _near(self, x, pos):
+        d = pos - x
+        r = np.sqrt((d * d).sum(1))
+        m = r < 2.0 * self.h
+        return m, r[m]
+
+    def point(self, x, pos, vel, rho, p):
+        m, r = self._near(x, pos)
+        w = kernel_w(r, self.h, self.aw, self.kernel) * self.mass_f / rho[m]
+        sw = w.sum()
+        if sw < 0.1:
+            return {"pressure": 0.0, "velocity": np.zeros(self.dim), "kernel_sum": sw}
+        return {"pressure": float((p[m] * w).sum() / sw), "velocity": (vel[m] * w[:, None]).sum(0) / sw,
+                "kernel_sum": sw}
+
+    def height(self, xh, pos, rho):
+        hor = pos[:, :-1]
+        m = np.all(np.abs(hor - xh) < 2.0 * self.h, axis=1)
+        if not m.any():
+            return float(self.zlo)
+        sub, vol = pos[m], self.mass_f / rho[m]
+        zs = np.arange(max(self.zlo, sub[:, -1].min() - 2 * self.h), min(self.zhi, sub[:, -1].max() + 2 * self.h),
+                       0.25 * self.dp)
+        pts = np.concatenate([np.broadcast_to(xh, (len(zs), self.dim - 1)), zs[:, None]], axis=1)
+        d = pts[:, None, :] - sub[None, :, :]
+        r = np.sqrt((d * d).sum(-1))
+        sw = (kernel_w(r, self.h, self.aw, self.kernel) * vol[None, :]).sum(1)
+        full = np.nonzero(sw >= 0.5)[0]
+        return float(zs[full[-1]]) if len(full) else float(self.zlo)
+
+    def force(self, lo, hi, bpos, brho, bp, fpos, frho, fp):
+        tol = 1e-9 + 1e-6 * self.dp
+        inb = np.all((bpos >= lo - tol) & (bpos <= hi + tol), axis=1)
+        F = np.zeros(self.dim)
+        if not inb.any():
+            return F
+        bpos, brho, bp = bpos[inb], brho[inb], bp[inb]
+        reach = 2.0 * self.h
+        nearf = np.all((fpos >= bpos.min(0) - reach) & (fpos <= bpos.max(0) + reach), axis=1)
+        fpos, frho, fp = fpos[nearf], frho[nearf], fp[nearf]
+        for i0 in range(0, len(bpos), 256):   # chunks keep the pair matrix small
+            b = slice(i0, i0 + 256)
+            d = fpos[None, :, :] - bpos[b][:, None, :]          # r_a - r_b (a fluid, b body)
+            r = np.sqrt((d * d).sum(-1))
+            m = (r < reach) & (r > 1e-12)
+            fac = np.where(m, grad_factor(r, self.h, self.bw, self.kernel), 0.0)
+            coef = (fp[None, :] + bp[b][:, None]) / (frho[None, :] * brho[b][:, None]) * fac
+            # force on the body = -(force on fluid a) = m_a m_b (P_a+P_b)/(rho_a rho_b) F r_ab
+            F += self.mass_f * self.mass_b * (coef[:, :, None] * d).sum((0, 1))
+        return F
+
+    # -- output
+    def datasets(self) -> dict:
+        """{'probes': tree, 'forces': tree} for `OutputWriter.write_group` (only non-empty ones)."""
+        out = {}
+        s = self.spec
+        rows = self.rows["probes"]
+        if rows:
+            tree = {"time": np.array([r["time"] for r in rows]), "step": np.array([r["step"] for r in rows])}
+            attrs = {"interval": s["interval"], "method": "Shepard kernel interpolation of fluid within 2h"}
+            for name, x in s["points"]:
+                tree[name] = {"pressure": np.array([r[name]["pressure"] for r in rows]),
+                              "velocity": np.array([r[name]["velocity"] for r in rows]),
+                              "position": np.asarray(x)}
+            for name, x in s["heights"]:
+                tree[name] = {"height": np.array([r[name] for r in rows]), "position": np.asarray(x)}
+            out["probes"] = (tree, attrs)
+        rows = self.rows["forces"]
+        if rows:
+            tree = {"time": np.array([r["time"] for r in rows]), "step": np.array([r["step"] for r in rows])}
+            for name, lo, hi in s["bodies"]:
+                tree[name] = {"force": np.array([r[name] for r in rows]), "min": lo, "max": hi}
+            out["forces"] = (tree, {"interval": s["force_interval"],
+                                    "method": "pressure force of the fluid on the body's boundary particles"})
+        return out
+
+    def series(self, name: str, field: str = "pressure"):
+        """(time, values) of one probe/body, e.g. ("P1", "pressure"), ("H1", "height"), ("tank", "force")."""
+        for group in ("probes", "forces"):
+            rows = self.rows[group]
+            if rows and name in rows[0]:
+                t = np.array([r["time"] for r in rows])
+                v = rows[0][name]
+                if isinstance(v, dict):
+                    return t, np.array([r[name][field] for r in rows])
+                return t, np.array([r[name] for r in rows])
+        raise KeyError(name)
+
+    def write(self, writer) -> None:
+        for group, (tree, attrs) in self.datasets().items():
+            writer.write_group(group, tree, attrs=attrs)

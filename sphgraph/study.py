@@ -1,0 +1,138 @@
+"""`sphgraph study CASE`: what accuracy costs.
+
+Sweeps resolution (dp), time integrator, kernel, density diffusion, precision and backend
+for a validation case (`sphgraph.validation.cases`), records the case's error metric and
+the wall time of each run, and writes
+
+* `study.csv`  one row per run (configuration, error, wall time, steps, particles, status,
+  whether it is on the Pareto front),
+* `study.png`  error against wall time, log-log, the Pareto front marked.
+
+The sweep is one factor at a time around the case's own configuration, at every dp (a
+full factorial grows too fast for a 2-core machine): each axis value is tried with the
+others at their baseline. `--target-error E` names the cheapest run with error <= E
+("model no more than a scene needs": 2D cases stay 2D, coarse dp where it suffices).
+The error metric and default dp list come from the case file's `[study]` table.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from .errors import NumericalError
+
+AXES = ("integrator", "kernel", "diffusion", "precision", "backend")
+DEFAULT_AXES = {"integrator": ["verlet", "symplectic"], "kernel": ["wendland", "cubic"],
+                "diffusion": ["fourtakas", "molteni", "none"], "precision": ["float64", "float32"],
+                "backend": ["numba-cpu"]}
+FIELDS = ["case", "dp", *AXES, "error", "wall_s", "steps", "particles", "status", "pareto"]
+
+
+def baseline(case) -> dict:
+    ph = case.scene.get("physics", {})
+    return {"integrator": ph.get("integrator", "verlet"), "kernel": ph.get("kernel", "wendland"),
+            "diffusion": ph.get("diffusion", "fourtakas"), "precision": "float64", "backend": "numba-cpu"}
+
+
+def configurations(case, dps, axes) -> list[dict]:
+    """One factor at a time around the baseline, at every dp (duplicates removed)."""
+    base = baseline(case)
+    out, seen = [], set()
+    for dp in dps:
+        variants = [dict(base)]
+        for ax, values in axes.items():
+            for v in values:
+                variants.append(dict(base, **{ax: v}))
+        for v in variants:
+            key = (dp, *(v[a] for a in AXES))
+            if key not in seen:
+                seen.add(key)
+                out.append(dict(v, dp=dp))
+    return out
+
+
+def run_one(case_name: str, cfg: dict, error_key: str) -> dict:
+    from .validation.cases import run_case
+    overrides = {k: cfg[k] for k in ("integrator", "kernel", "diffusion")}
+    if cfg["diffusion"] == "none":
+        overrides["delta"] = 0.0
+    row = dict(cfg, case=case_name, status="ok")
+    t0 = time.perf_counter()
+    try:
+        res = run_case(case_name, dp=cfg["dp"], backend=cfg["backend"], precision=cfg["precision"],
+                       overrides=overrides, plot=False)
+        row.update(error=float(res.metrics[error_key]), wall_s=res.wall_s, steps=res.steps,
+                   particles=res.particles)
+    except NumericalError as e:
+        row.update(error=math.inf, wall_s=time.perf_counter() - t0, steps=e.step or 0, particles=0,
+                   status=f"failed: {e.cause}")
+    return row
+
+
+def cheapest(rows, target: float):
+    ok = [r for r in rows if np.isfinite(r["error"]) and r["error"] <= target]
+    return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def describe(r) -> str:
+    return (f"dp={r['dp']:g} {r['integrator']} {r['kernel']} diffusion={r['diffusion']} "
+            f"{r['precision']} {r['backend']}: error {r['error']:.4g}, {r['wall_s']:.1f} s")
+
+
+def read_csv(path) -> list[dict]:
+    rows = []
+    with open(path) as f:
+        for r in csv.DictReader(f):
+            for k in ("dp", "error", "wall_s"):
+                r[k] = float(r[k])
+            for k in ("steps", "particles"):
+                r[k] = int(float(r[k]))
+            rows.append(r)
+    return rows
+
+
+def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, from_csv=None,
+              log=print) -> dict:
+    from .plots import pareto_front, plot_study
+    from .validation.cases import load_case
+    case = load_case(case_name)
+    st = tomllib.loads(case.text).get("study", {})
+    error_key = st.get("error", next(iter(case.tolerances), "error"))
+    out = Path(out or Path("out") / "study" / case.name)
+    out.mkdir(parents=True, exist_ok=True)
+    if from_csv:
+        rows = read_csv(from_csv)
+    else:
+        dps = dps or st.get("dps") or [case.dp]
+        if axes is None or not axes:
+            axes = {k: v for k, v in DEFAULT_AXES.items() if k in st.get("axes", AXES)}
+        rows = []
+        for cfg in configurations(case, dps, axes):
+            r = run_one(case.name, cfg, error_key)
+            log(describe(r) + ("" if r["status"] == "ok" else f" [{r['status']}]"))
+            rows.append(r)
+    front = set(pareto_front([r["wall_s"] for r in rows], [r["error"] for r in rows]).tolist())
+    for i, r in enumerate(rows):
+        r["pareto"] = int(i in front)
+    with open(out / "study.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow(r)
+    png = plot_study(rows, out / "study.png", title=f"{case.title}: {error_key} against wall time",
+                     error_key="error")
+    lines = [f"{len(rows)} runs; error = {error_key}; wrote {out / 'study.csv'} and {png}",
+             "Pareto front (cheapest first):"]
+    lines += ["  " + describe(rows[i]) for i in sorted(front, key=lambda i: rows[i]["wall_s"])]
+    best = None
+    if target_error is not None:
+        best = cheapest(rows, target_error)
+        lines.append(f"target error {target_error:g}: " + (f"cheapest: {describe(best)}" if best else
+                     "no configuration meets it; the most accurate: " +
+                     describe(min(rows, key=lambda r: r["error"]))))
+    return {"rows": rows, "csv": out / "study.csv", "png": png, "best": best, "summary": "\n".join(lines)}

@@ -1,0 +1,99 @@
+"""Where the method fails: each failure provoked on a small run, detected from the run's
+state (NaN/density checks, energy, density spread, particle spacing, wall crossing,
+pressure noise: never from the parameters) and named; the recommended setting stays stable."""
+import pytest
+
+from sphgraph.solver import Simulation
+from sphgraph.stability import (THRESHOLDS, drop_scene, jet_scene, set_drop_velocity, set_jet_velocity,
+                                stability_map, tank_scene, watch)
+
+
+def sim_of(scene):
+    try:
+        return Simulation(scene, invariants=False)
+    except TypeError:
+        return Simulation(scene)
+
+
+def test_cfl_too_large_blows_up_within_a_few_steps():
+    sim = sim_of(drop_scene(cfl=2.0, end_time=10.0))
+    set_drop_velocity(sim, 5.0)
+    v = watch(sim, 50, every=1, energy_growth=1.5)
+    assert v.name == "blow-up" and v.step <= 20, v
+    sim = sim_of(drop_scene(cfl=0.2, end_time=10.0))      # DualSPHysics' CFL 0.2
+    set_drop_velocity(sim, 5.0)
+    assert watch(sim, 100, every=1, energy_growth=1.5).stable
+
+
+def test_blow_up_is_a_numerical_error_with_step_and_cause():
+    """Past the energy detector, the solver itself stops with NumericalError (exit 1)."""
+    sim = sim_of(drop_scene(cfl=4.0, end_time=10.0))
+    set_drop_velocity(sim, 5.0)
+    v = watch(sim, 200, every=1)
+    assert v.name == "blow-up" and v.step is not None and v.step < 200, v
+    assert any(c in v.detail for c in ("NaN", "domain", "density")), v
+
+
+def test_speed_of_sound_too_low_density_varies_more_than_one_percent():
+    """Elliptical drop, |v| up to 1 m/s: coefsound 1 (c0 3.1 m/s, Mach 0.3) compresses the
+    fluid by > 1 %; coefsound 20 (Mach 0.016) stays far below."""
+    sim = sim_of(drop_scene(coefsound=1.0, end_time=10.0))
+    set_drop_velocity(sim, 5.0)
+    v = watch(sim, 200, every=10, density_bound=THRESHOLDS["density_variation"])
+    assert v.name == "compressibility" and v.value > 0.01, v
+    sim = sim_of(drop_scene(coefsound=20.0, end_time=10.0))
+    set_drop_velocity(sim, 5.0)
+    v = watch(sim, 300, every=10, density_bound=THRESHOLDS["density_variation"])
+    assert v.stable and v.value < 0.002, v
+
+
+def _expanding_drop(**kw):
+    sim = sim_of(drop_scene(end_time=10.0, coefsound=5.0, **kw))
+    set_drop_velocity(sim, -3.0)
+    p = sim.contexts[0].state.particles
+    p.vel[:, 1] = 3.0 * p.pos[:, 1]           # radial expansion: the fluid goes into tension
+    p.vel_m1[:] = p.vel
+    return sim
+
+
+def test_tensile_instability_clumps_particles_under_negative_pressure():
+    """An expanding patch (negative pressure): with alpha = 0.02 particles pair up (< dp/2
+    apart) within 0.15 s; artificial viscosity alpha = 1 keeps them > 0.8 dp apart over 0.2 s."""
+    v = watch(_expanding_drop(visc_alpha=0.02), 500, every=20, clump_fraction=THRESHOLDS["clump_fraction"])
+    assert v.name == "clumping", v
+    sim = _expanding_drop(visc_alpha=1.0)
+    v = watch(sim, 500, every=50, clump_fraction=THRESHOLDS["clump_fraction"])
+    assert v.stable and sim.time > 0.15, v
+
+
+def test_dbc_penetration_at_high_impact_speed():
+    """A slab hitting the floor at 20 m/s (Mach 0.7 for c0 = 28 m/s): one DBC layer lets
+    fluid through; three layers (the kernel's support) hold it."""
+    dp = 0.02
+    sim = sim_of(jet_scene(dp=dp, layers=1))
+    set_jet_velocity(sim, 20.0)
+    v = watch(sim, 300, every=5, wall=(1, 0.0, -1))
+    assert v.name == "penetration", v
+    sim = sim_of(jet_scene(dp=dp, layers=3))
+    set_jet_velocity(sim, 20.0)
+    assert watch(sim, 300, every=5, wall=(1, -2 * dp, -1)).stable
+
+
+def test_no_density_diffusion_pressure_noise():
+    """Dam break at dp = 0.04, t ~ 0.08 s: without density diffusion the interior pressure
+    noise exceeds 7 % of rho g H; with Fourtakas diffusion (delta 0.1) it stays below."""
+    scale = 1000.0 * 9.81 * 2.0
+    v = watch(sim_of(tank_scene(diffusion="none", delta=0.0)), 600, every=120, p_scale=scale,
+              noise_bound=THRESHOLDS["pressure_noise"] + 0.02)
+    assert v.name == "pressure-noise", v
+    v = watch(sim_of(tank_scene(diffusion="fourtakas", delta=0.1)), 600, every=120, p_scale=scale,
+              noise_bound=THRESHOLDS["pressure_noise"] + 0.02)
+    assert v.stable, v
+
+
+def test_stability_map_cells():
+    cells = stability_map([0.2, 2.0], [1.0, 20.0], steps=60)
+    got = {(c["cfl"], c["coefsound"]): c["verdict"] for c in cells}
+    assert got[(0.2, 20.0)] == "stable"
+    assert got[(2.0, 20.0)] == "blow-up"
+    assert got[(0.2, 1.0)] == "compressibility"

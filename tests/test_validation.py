@@ -1,0 +1,147 @@
+"""Validation cases, probes/forces and the speed-vs-accuracy study: small, fast versions with
+real tolerances (the default resolutions run with `sphgraph validate CASE`; sweeps in
+benchmarks/study_dambreak2d.py and benchmarks/convergence.py)."""
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from sphgraph import Scene
+from sphgraph.cli import main
+from sphgraph.errors import InputError
+from sphgraph.probes import ProbeSampler, parse
+from sphgraph.validation import load
+from sphgraph.validation.cases import list_cases, load_case, poiseuille_u, run_case
+
+
+def test_every_case_loads_with_sourced_reference_and_tolerances():
+    assert set(list_cases()) >= {"dambreak", "hydrostatic", "buchner", "poiseuille"}
+    for name in list_cases():
+        c = load_case(name)
+        assert c.tolerances, name
+        assert all(lo <= hi for lo, hi in c.tolerances.values()), name
+        ds = c.reference.get("datasets", {}) or ({"_": c.reference["dataset"]} if "dataset" in c.reference else {})
+        for f in ds.values():
+            data, header = load(f)
+            assert len(data) >= 5 and ("doi" in header.lower() or "thesis" in header.lower()), f
+        if not ds:   # analytic cases cite their solution in the case file
+            assert "doi:" in c.text or "analytic" in c.text.lower(), name
+
+
+def test_dambreak_front_against_each_experiment_coarse():
+    """dp = a/20: the front leads every experiment (no gate, no friction in the model) by
+    5-20 % on average, and the datasets' own spread is reported (~8 %)."""
+    r = run_case("dambreak", dp=0.05, plot=False)
+    for key in ("ko", "mm1", "mm2"):
+        assert 0.0 < r.metrics[f"front_mean_rel_err_{key}"] < 0.2, r.report()
+        assert r.metrics[f"front_max_abs_rel_err_{key}"] < 0.25, r.report()
+    assert 0.05 < r.metrics["datasets_spread_max_rel"] < 0.12
+    assert r.ok, r.report()
+
+
+def test_hydrostatic_profile_and_tank_force_coarse():
+    r = run_case("hydrostatic", dp=0.05, plot=False, params={"end_time": 0.5, "t_avg0": 0.3})
+    assert r.metrics["pressure_rms_err_rel_rhogH"] < 0.03, r.report()
+    assert abs(r.metrics["tank_force_rel_weight_minus_1"]) < 0.05, r.report()
+    assert r.ok, r.report()
+
+
+def test_buchner_wall_impact_time_coarse():
+    """H/15: the wall pressure stays at the data's pre-impact level and rises within the
+    case's window around the data's impact at T = t sqrt(g/H) = 2.5."""
+    r = run_case("buchner", dp=0.04, plot=False)
+    assert r.metrics["pre_impact_rms_err"] < 0.12, r.report()
+    assert -0.35 < r.metrics["impact_T_err"] < 0.25, r.report()
+    assert r.metrics["peak_p_smoothed_rel_rhogH"] > 0.2
+
+
+def test_poiseuille_convergence_with_periodic_halo():
+    r = run_case("poiseuille", plot=False)
+    assert r.metrics["u_l2_err_rel_umax"] < 0.12, r.report()
+    assert r.metrics["u_l2_err_at_H/dp=20"] < r.metrics["u_l2_err_at_H/dp=10"]
+    assert 0.7 < r.metrics["convergence_order"] < 2.5, r.report()
+    assert r.ok
+
+
+def test_poiseuille_series_solution_limits():
+    H, nu, F = 1e-3, 1e-6, 8e-4
+    y = np.linspace(0, H, 11)
+    assert np.allclose(poiseuille_u(y, 0.0, F, nu, H), 0.0, atol=2e-3 * F * H * H / (8 * nu))
+    assert np.allclose(poiseuille_u(y, 50.0, F, nu, H), F / (2 * nu) * y * (H - y), rtol=1e-9, atol=1e-15)
+
+
+# --------------------------------------------------------------------------- probes
+def _tank(extra=None):
+    d = {"format": 1, "name": "tank", "dim": 2, "dp": 0.02, "end_time": 0.1,
+         "domain": {"min": [-0.08, -0.08], "max": [1.08, 1.0], "origin": [0.0, 0.0]},
+         "initial": {"hydrostatic": True},
+         "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.0, 0.5]}],
+         "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.0, 0.8], "layers": 3}]}
+    d.update(extra or {})
+    return Scene.from_dict(d)
+
+
+def test_probes_on_still_water_state():
+    """At the hydrostatic start: point pressure = rho0 g depth, surface height = the surface,
+    force on the tank = the water's weight (each within a few %)."""
+    sc = _tank({"probes": {"points": [{"name": "P", "position": [0.5, 0.2]}],
+                           "heights": [{"name": "H", "position": [0.5]}]},
+                "forces": {"bodies": [{"name": "tank", "min": [-1, -1], "max": [2, 2]}]}})
+    from sphgraph.solver import Simulation
+    sim = Simulation(sc)
+    smp = ProbeSampler(sc)
+    smp.sample(sim)
+    zs = sc.surface_level()
+    p = smp.rows["probes"][0]["P"]["pressure"]
+    assert abs(p / (1000 * 9.81 * (zs - 0.2)) - 1) < 0.02, p
+    assert abs(smp.rows["probes"][0]["H"] - zs) < sc.dp, (smp.rows["probes"][0]["H"], zs)
+    F = smp.rows["forces"][0]["tank"]
+    weight = sim.n_fluid * sc.constants.mass_fluid * 9.81
+    assert abs(-F[1] / weight - 1) < 0.05 and abs(F[0]) < 1e-6 * weight, (F, weight)
+    tree = smp.datasets()
+    assert set(tree) == {"probes", "forces"} and tree["probes"][0]["P"]["velocity"].shape == (1, 2)
+
+
+def test_probe_tables_are_validated():
+    with pytest.raises(InputError, match=r"probes.points\[0\].position"):
+        parse(_tank({"probes": {"points": [{"name": "P", "position": [0.5]}]}}))
+    with pytest.raises(InputError, match="probes: expected keys"):
+        parse(_tank({"probes": {"pionts": []}}))
+    with pytest.raises(InputError, match=r"forces.bodies\[0\].max"):
+        parse(_tank({"forces": {"bodies": [{"name": "b", "min": [0, 0], "max": [-1, 1]}]}}))
+    assert parse(_tank())["points"] == []
+
+
+# --------------------------------------------------------------------------- CLI and study
+def test_cli_validate_exit_codes_and_plot(tmp_path, capsys):
+    assert main(["validate", "--list"]) == 0
+    assert "poiseuille" in capsys.readouterr().out
+    assert main(["validate", "poiseuille", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "convergence_order" in out and "PASS" in out
+    assert (tmp_path / "poiseuille.png").stat().st_size > 1000
+    strict = tmp_path / "strict.toml"
+    strict.write_text(load_case("poiseuille").text.replace("u_l2_err_rel_umax = [0.0, 0.12]",
+                                                           "u_l2_err_rel_umax = [0.0, 1e-6]"))
+    assert main(["validate", str(strict), "--out", str(tmp_path)]) == 1
+    assert "OUTSIDE" in capsys.readouterr().out
+    assert main(["validate", "nosuchcase"]) == 2
+
+
+def test_study_csv_png_pareto_and_target(tmp_path, capsys):
+    """Verlet fails the laminar flow (its leapfrog velocity is unstable for diffusion): the
+    study records it as the expensive-and-wrong point; the target picks Symplectic."""
+    rc = main(["study", "poiseuille", "--dp", "5e-5", "--integrator", "verlet,symplectic",
+               "--out", str(tmp_path), "--target-error", "0.12"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    rows = list(csv.DictReader(open(tmp_path / "study.csv")))
+    assert {r["integrator"] for r in rows} == {"verlet", "symplectic"}
+    err = {r["integrator"]: float(r["error"]) for r in rows}
+    assert err["symplectic"] < 0.12 < err["verlet"] or not math.isfinite(err["verlet"])
+    assert any(r["pareto"] == "1" for r in rows)
+    assert "cheapest: dp=5e-05 symplectic" in out
+    assert (tmp_path / "study.png").stat().st_size > 1000
+    assert main(["study", "poiseuille", "--from-csv", str(tmp_path / "study.csv"), "--out", str(tmp_path),
+                 "--target-error", "1e-9"]) == 1
