@@ -34,19 +34,28 @@ from sphgraph.physics.interact import bound_pair, fluid_pair
 
 SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") == "1"
 BLOCK = 256          # threads per block, element-wise kernels
-FORCE_BLOCK = 128    # threads per block, force kernels
+FORCE_BLOCK = int(os.environ.get("SPHGRAPH_CUDA_FORCE_BLOCK", "128"))   # threads per block, force kernels
 REDUCE_BLOCKS = 512  # blocks of the grid-stride reductions (dt, bounds/check)
 SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK * SCAN_ITEMS)
 
 
 # ------------------------------------------------------------------------------- retargeting
-def _cast_consts(code, ft):
+# float32 copies only: literal -> replacement. The Fourtakas hydrostatic term switches
+# from its binomial series (4 terms) to pow() at |y| >= 1e-3; in float32 the series is
+# exact to round-off up to |y| = 0.02 (next term C(1/7,5) y^5 = 6.7e-11 against
+# y/7 = 2.9e-3: 2.3e-8 relative, below float32's 6e-8), and pow() in a branch that a
+# part of each warp takes costs the whole warp.
+F32_REMAP = {"fluid_pair": {1e-3: 2e-2}}
+
+
+def _cast_consts(code, ft, remap=None):
     out = []
+    remap = remap or {}
     for c in code.co_consts:
         if type(c) is float:
-            c = ft(c)
+            c = ft(remap.get(c, c))
         elif isinstance(c, types.CodeType):
-            c = _cast_consts(c, ft)
+            c = _cast_consts(c, ft, remap)
         out.append(c)
     return code.replace(co_consts=tuple(out))
 
@@ -57,7 +66,8 @@ def _clone(f, dtype, memo):
     f = getattr(f, "py_func", f)
     code = f.__code__
     if np.dtype(dtype) != np.float64:
-        code = _cast_consts(code, np.dtype(dtype).type)
+        remap = F32_REMAP.get(f.__name__) if np.dtype(dtype) == np.float32 else None
+        code = _cast_consts(code, np.dtype(dtype).type, remap)
     g = dict(f.__globals__)
     for name in code.co_names:
         v = g.get(name)
@@ -652,11 +662,355 @@ def k_count_pairs(dpx, dpy, dpz, drx_, dry_, drz_, n, srx, sry, srz,
                         m += 1
     counts[i] = m
 
+# ----------------------------------------------------------------- kind-split layout
+# Rows are sorted by (kind != 0, cell): fluid rows first, each kind's rows grouped by
+# cell, `start` holding 2 * ncells + 1 offsets (fluid cells, then boundary cells), as
+# DualSPHysics keeps bound and fluid apart. A boundary destination then visits only
+# fluid candidates (it interacts with nothing else), and fluid and boundary
+# destinations run as two launches (no fluid_pair/bound_pair divergence in a warp).
+# Sources are packed records of the run's type: pos4 = (x - ref, y - ref, z - ref, p)
+# and vel4 = (vx, vy, vz, rho), so a candidate costs two 16-byte records (one cache
+# sector each) instead of eight arrays. vel4 is the velocity/density storage itself;
+# pos4 is rebuilt by k_pack after each sort and predictor, and is the sort's scratch.
+
+def k_keys_hist2(px, py, pz, kind, n, dim, ox, oy, oz, inv_size, nx, ny, nz, sx, sy, sz, ncells, keys, counts):
+    """As k_keys_hist, boundary rows keyed after all fluid cells (key + ncells)."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    cx = int(math.floor((px[i] - ox) * inv_size))
+    cx = min(max(cx, 0), nx - 1)
+    cy = int(math.floor((py[i] - oy) * inv_size))
+    cy = min(max(cy, 0), ny - 1)
+    key = cx * sx + cy * sy
+    if dim == 3:
+        cz = int(math.floor((pz[i] - oz) * inv_size))
+        cz = min(max(cz, 0), nz - 1)
+        key += cz * sz
+    if kind[i] != 0:
+        key += ncells
+    keys[i] = key
+    cuda.atomic.add(counts, key, 1)
+
+
+def k_gather4(src, perm, n, dst):
+    """Records of 4 (flat arrays of 4 n)."""
+    i = cuda.grid(1)
+    if i < n:
+        s = 4 * perm[i]
+        d = 4 * i
+        dst[d] = src[s]
+        dst[d + 1] = src[s + 1]
+        dst[d + 2] = src[s + 2]
+        dst[d + 3] = src[s + 3]
+
+
+def k_pack(px, py, pz, vel4, n, dim, ref0, ref1, ref2, prm, with_press, pos4):
+    """pos4 = (x - ref, y - ref, z - ref [0 in 2D], tait(rho)) in the run's type."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    d = 4 * i
+    pos4[d] = px[i] - ref0
+    pos4[d + 1] = py[i] - ref1
+    if dim == 3:
+        pos4[d + 2] = pz[i] - ref2
+    else:
+        pos4[d + 2] = 0.0
+    if with_press:
+        pos4[d + 3] = tait(vel4[d + 3], prm)
+
+
+def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
+               o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+               prm, dim, kernel_id, ddt_kind, laminar, final, gx, gy, gz,
+               ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
+    """Fluid destinations rows i0..i1-1 against the rank's own rows (kind-split grid):
+    per row of cells, its fluid candidates then its boundary candidates. Pair physics,
+    row cut and results as k_forces."""
+    i = cuda.grid(1) + i0
+    if i >= i1:
+        return
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    q0 = 0.0
+    q1 = 0.0
+    q2 = 0.0
+    empty = False
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        lo = 0
+        hi = 0
+        x = 0.0
+        if a >= 0:
+            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
+            c = int(math.floor((x - o) * inv_size))
+            lo = max(c - reach, 0)
+            hi = min(c + reach, nk - 1)
+            if lo > hi:
+                empty = True
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+            q0 = x
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+            q1 = x
+        else:
+            lo2 = lo
+            hi2 = hi
+            q2 = x
+    size = 1.0 / inv_size
+    reach2 = float(prm[P_SUPPORT2]) * 1.000001 + 1e-30
+    d4 = 4 * i
+    xa = pos4[d4]
+    ya = pos4[d4 + 1]
+    za = pos4[d4 + 2]
+    p_a = pos4[d4 + 3]
+    vxa = vel4[d4]
+    vya = vel4[d4 + 1]
+    vza = vel4[d4 + 2]
+    rho_a = vel4[d4 + 3]
+    inv_rho_a = 1.0 / rho_a
+    zero = rho_a - rho_a
+    axx = zero
+    ayy = zero
+    azz = zero
+    arr = zero
+    dd = zero
+    cc = 0
+    vmax = zero
+    if not empty:
+        for c2 in range(lo2, hi2 + 1):
+            d2 = 0.0
+            if a2 >= 0:
+                d2 = max(0.0, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
+            for c1 in range(lo1, hi1 + 1):
+                d1 = 0.0
+                if a1 >= 0:
+                    d1 = max(0.0, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
+                rem = reach2 - d1 * d1 - d2 * d2
+                if rem < 0.0:
+                    continue
+                rr = math.sqrt(rem)
+                clo = max(lo0, int(math.floor((q0 - rr - o0) * inv_size)))
+                chi = min(hi0, int(math.floor((q0 + rr - o0) * inv_size)))
+                if clo > chi:
+                    continue
+                row = (c2 * n1 + c1) * n0
+                jf = start[row + clo]
+                nfl = start[row + chi + 1] - jf
+                jb = start[ncells + row + clo] - nfl
+                m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
+                for t in range(m):
+                    b_bound = t >= nfl
+                    j4 = 4 * ((jb + t) if b_bound else (jf + t))
+                    drx = xa - pos4[j4]
+                    dry = ya - pos4[j4 + 1]
+                    drz = za - pos4[j4 + 2]
+                    r2 = drx * drx + dry * dry + drz * drz
+                    if r2 > support2 or r2 < 1e-18:
+                        continue
+                    dvx = vxa - vel4[j4]
+                    dvy = vya - vel4[j4 + 1]
+                    dvz = vza - vel4[j4 + 2]
+                    fx, fy, fz, fr, fd, fc, fv = fluid_pair(
+                        drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, vel4[j4 + 3], p_a, pos4[j4 + 3],
+                        mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
+                    axx += fx
+                    ayy += fy
+                    azz += fz
+                    arr += fr
+                    dd += fd
+                    cc |= fc
+                    if fv > vmax:
+                        vmax = fv
+    if final:
+        ax_[i] = axx + gx
+        ay_[i] = ayy + gy
+        if dim == 3:
+            az_[i] = azz + gz
+        ar_[i] = arr + (dd if cc == 0 else zero * dd)
+    else:
+        ax_[i] = axx
+        ay_[i] = ayy
+        if dim == 3:
+            az_[i] = azz
+        ar_[i] = arr
+        ddt_[i] = dd
+        cancel_[i] = cc
+    visc_[i] = vmax
+
+
+def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
+               o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+               prm, dim, kernel_id, final, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
+    """Boundary destinations rows i0..i1-1: fluid candidates only (DBC continuity)."""
+    i = cuda.grid(1) + i0
+    if i >= i1:
+        return
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    q0 = 0.0
+    q1 = 0.0
+    q2 = 0.0
+    empty = False
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        lo = 0
+        hi = 0
+        x = 0.0
+        if a >= 0:
+            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
+            c = int(math.floor((x - o) * inv_size))
+            lo = max(c - reach, 0)
+            hi = min(c + reach, nk - 1)
+            if lo > hi:
+                empty = True
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+            q0 = x
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+            q1 = x
+        else:
+            lo2 = lo
+            hi2 = hi
+            q2 = x
+    size = 1.0 / inv_size
+    reach2 = float(prm[P_SUPPORT2]) * 1.000001 + 1e-30
+    d4 = 4 * i
+    xa = pos4[d4]
+    ya = pos4[d4 + 1]
+    za = pos4[d4 + 2]
+    vxa = vel4[d4]
+    vya = vel4[d4 + 1]
+    vza = vel4[d4 + 2]
+    rho_a = vel4[d4 + 3]
+    zero = rho_a - rho_a
+    arr = zero
+    vmax = zero
+    if not empty:
+        for c2 in range(lo2, hi2 + 1):
+            d2 = 0.0
+            if a2 >= 0:
+                d2 = max(0.0, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
+            for c1 in range(lo1, hi1 + 1):
+                d1 = 0.0
+                if a1 >= 0:
+                    d1 = max(0.0, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
+                rem = reach2 - d1 * d1 - d2 * d2
+                if rem < 0.0:
+                    continue
+                rr = math.sqrt(rem)
+                clo = max(lo0, int(math.floor((q0 - rr - o0) * inv_size)))
+                chi = min(hi0, int(math.floor((q0 + rr - o0) * inv_size)))
+                if clo > chi:
+                    continue
+                row = (c2 * n1 + c1) * n0
+                for j in range(start[row + clo], start[row + chi + 1]):
+                    j4 = 4 * j
+                    drx = xa - pos4[j4]
+                    dry = ya - pos4[j4 + 1]
+                    drz = za - pos4[j4 + 2]
+                    r2 = drx * drx + dry * dry + drz * drz
+                    if r2 > support2 or r2 < 1e-18:
+                        continue
+                    fr, fv = bound_pair(drx, dry, drz, r2, vxa - vel4[j4], vya - vel4[j4 + 1],
+                                        vza - vel4[j4 + 2], rho_a, vel4[j4 + 3], mf, prm, kernel_id)
+                    arr += fr
+                    if fv > vmax:
+                        vmax = fv
+    ax_[i] = zero
+    ay_[i] = zero
+    if dim == 3:
+        az_[i] = zero
+    ar_[i] = arr
+    if not final:
+        ddt_[i] = zero
+        cancel_[i] = 0
+    visc_[i] = vmax
+
+
+def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_size, n0, n1, n2,
+                   a0, a1, a2, reach, support2, counts):
+    """Pairs within 2h of each destination, as DualSPHysics counts them: every
+    neighbour of a fluid row, the fluid neighbours of a boundary row."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        lo = 0
+        hi = 0
+        if a >= 0:
+            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
+            c = int(math.floor((x - o) * inv_size))
+            lo = max(c - reach, 0)
+            hi = min(c + reach, nk - 1)
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+        else:
+            lo2 = lo
+            hi2 = hi
+    m = 0
+    halves = 2 if i < nf else 1
+    if lo0 <= hi0 and lo1 <= hi1 and lo2 <= hi2:
+        xa = pos4[4 * i]
+        ya = pos4[4 * i + 1]
+        za = pos4[4 * i + 2]
+        for hh in range(halves):
+            base = hh * ncells
+            for c2 in range(lo2, hi2 + 1):
+                for c1 in range(lo1, hi1 + 1):
+                    row = base + (c2 * n1 + c1) * n0
+                    for j in range(start[row + lo0], start[row + hi0 + 1]):
+                        dx = xa - pos4[4 * j]
+                        dy = ya - pos4[4 * j + 1]
+                        dz = za - pos4[4 * j + 2]
+                        r2 = dx * dx + dy * dy + dz * dz
+                        if r2 <= support2 and r2 >= 1e-18:
+                            m += 1
+    counts[i] = m
+
 
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
             "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
-            "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs")
-_FAST = {"k_forces", "k_count_pairs"}
+            "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
+            "k_keys_hist2", "k_gather4", "k_pack", "k_forces_f", "k_forces_b", "k_count_pairs2")
+_FAST = {"k_forces", "k_count_pairs", "k_forces_f", "k_forces_b", "k_count_pairs2"}
 _BUILT: dict = {}
 
 

@@ -40,7 +40,9 @@ class DeviceState:
         self.dim = dim
         self.dtype = np.dtype(dtype)
         self.ref = np.asarray(ref, np.float64)     # reference point of the float positions
-        self.arrays = {}                            # name -> device array (owned, swapped on sort)
+        self.arrays = {}                            # name -> device array (owned)
+        self.views = {}                             # name -> view into an owned array (see make_views)
+        self.nf = 0                                 # fluid rows: rows 0..nf-1 after each sort
         self.grid = None                            # dict: origin(perm), dims, axes, inv, reach, ncells
         self.box = None                             # host bounding box [min3, max3] of the rows
         self.parts = {}
@@ -52,10 +54,41 @@ class DeviceState:
         self.final = True
 
     def __getattr__(self, name):
-        try:
-            return self.__dict__["arrays"][name]
-        except KeyError:
-            raise AttributeError(name) from None
+        d = self.__dict__
+        if name in d.get("arrays", {}):
+            return d["arrays"][name]
+        if name in d.get("views", {}):
+            return d["views"][name]
+        raise AttributeError(name)
+
+    def A(self) -> dict:
+        """Owned arrays and views by name."""
+        return {**self.arrays, **self.views}
+
+    def make_views(self):
+        """Per-component views of the packed records, and the aliases that keep the
+        footprint down: `visc` and `perm` share one buffer (perm is dead between the
+        sort and the next sort, visc lives from the forces to dt), the cell keys live in
+        `ax` (dead during the sort), and pos4 (rebuilt after each sort) is the sort's
+        gather scratch and holds the histogram when it fits."""
+        a, v = self.arrays, self.views
+        v4, p4 = a["vel4"], a["pos4"]
+        n = p4.shape[0] // 4
+        for k, ax in enumerate(_VEC):
+            v["v" + ax] = v4[k::4]
+            v["r" + ax] = p4[k::4]
+        v["rho"] = v4[3::4]
+        v["press"] = p4[3::4]
+        v["visc"] = a["raw"]
+        v["perm"] = a["raw"].view(np.int32)[:n]
+        v["keys"] = a["ax"].view(np.int32)[:n]
+
+    def scratch(self, dtype, m):
+        """m elements of `dtype` in the pos4 buffer (None when they do not fit)."""
+        p4 = self.arrays["pos4"]
+        if m * np.dtype(dtype).itemsize > p4.nbytes:
+            return None
+        return p4.view(dtype)[:m]
 
     def nbytes(self) -> int:
         seen = set()
@@ -74,6 +107,14 @@ def _count(state, direction, kind, nbytes):
     by = e.setdefault("bytes_by_kind", {})
     k = f"{direction[:3]}:{kind}"
     by[k] = by.get(k, 0) + int(nbytes)
+
+
+def _plain_slabs(domain) -> bool:
+    """The device edge/displaced paths reproduce sphgraph.domain.Slabs; other domains
+    (e.g. periodic images) get current host rows and their own methods."""
+    from sphgraph.domain import Slabs
+    t = type(domain)
+    return t.edge is Slabs.edge and t.take_displaced is Slabs.take_displaced
 
 
 @register("compute", "numba-cuda")
@@ -104,8 +145,11 @@ class NumbaCUDA(ComputeBackend):
         dim = p.dim
         dt = np.dtype(state.dtype)
         old = state.extra.get("dev")
+        if old is not None and old.__dict__.get("host_obj") is p and old.n == p.n:
+            return   # same host row set as on the device (no rows left or came): keep the device rows
         ref = old.ref if old is not None else (p.pos.min(axis=0) if p.n else np.zeros(dim))
         dv = DeviceState(p.n, dim, dt, ref)
+        dv.nf = int(np.count_nonzero(p.kind == 0)) if p.n else 0
         n = max(p.n, 1)
         up = 0
 
@@ -121,30 +165,27 @@ class NumbaCUDA(ComputeBackend):
             ax = _VEC[d]
             if d < dim:
                 put("p" + ax, p.pos[:, d], np.float64)
-                put("v" + ax, p.vel[:, d], dt)
                 put("vm" + ax, p.vel_m1[:, d], dt)
             else:   # 2D: one-element dummies
-                for pre in ("p", "v", "vm"):
+                for pre in ("p", "vm"):
                     dv.arrays[pre + ax] = cuda.device_array(1, np.float64 if pre == "p" else dt)
-        put("rho", p.rho, dt)
+        v4 = np.zeros((n, 4), dt)       # (vx, vy, vz, rho) records: velocity and density live here
+        if p.n:
+            v4[:, :dim] = p.vel
+            v4[:, 3] = p.rho
+        put("vel4", v4.reshape(-1), dt)
         put("rhom", p.rho_m1, dt)
         put("kind", p.kind, np.int8)
         put("id", p.id, np.int64 if p.n and int(p.id.max()) >= 2 ** 31 else np.int32)
         # work arrays (not uploaded)
+        dv.arrays["pos4"] = cuda.device_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
         for ax in _VEC[:dim]:
-            dv.arrays["r" + ax] = cuda.device_array(n, dt)       # float positions rel. to ref
             dv.arrays["a" + ax] = cuda.device_array(n, dt)       # reduced acceleration
         for ax in _VEC[dim:]:
-            dv.arrays["r" + ax] = cuda.device_array(1, dt)
             dv.arrays["a" + ax] = cuda.device_array(1, dt)
-        dv.arrays["press"] = cuda.device_array(n, dt)
         dv.arrays["ar"] = cuda.device_array(n, dt)
-        dv.arrays["visc"] = cuda.device_array(n, dt)
-        dv.arrays["keys"] = cuda.device_array(n, np.int32)
-        dv.arrays["perm"] = cuda.device_array(n, np.int32)
-        dv.arrays["tmp64"] = cuda.device_array(n, np.float64)
-        dv.arrays["tmp8"] = cuda.device_array(n, np.int8)
-        dv.arrays["tmpid"] = cuda.device_array(n, dv.arrays["id"].dtype)
+        dv.arrays["raw"] = cuda.device_array(n, dt)          # visc, and perm during the sort
+        dv.make_views()
         dv.arrays["dtout"] = cuda.device_array(3, np.float64)
         dv.arrays["chk_bad"] = cuda.device_array(1, np.int64)
         dv.arrays["chk_box"] = cuda.device_array(6, np.float64)
@@ -152,6 +193,9 @@ class NumbaCUDA(ComputeBackend):
         if p.n:
             dv.box[0, :dim] = p.pos.min(axis=0)
             dv.box[1, :dim] = p.pos.max(axis=0)
+        dv.__dict__["host_obj"] = p
+        if old is not None and "integrator" in old.__dict__:
+            dv.__dict__["integrator"] = old.__dict__["integrator"]
         state.extra["dev"] = dv
         _count(state, "h2d_bytes", "upload", up)
         state.parts = {}
@@ -174,17 +218,17 @@ class NumbaCUDA(ComputeBackend):
             return a
 
         pos = np.empty((n, dim), np.float64)
-        vel = np.empty((n, dim), dv.dtype)
         vm = np.empty((n, dim), dv.dtype)
         for d in range(dim):
             ax = _VEC[d]
             pos[:, d] = get("p" + ax)
-            vel[:, d] = get("v" + ax)
             vm[:, d] = get("vm" + ax)
+        v4 = dv.arrays["vel4"].copy_to_host().reshape(-1, 4)[:n]
+        down += v4.nbytes
         p.pos = pos.astype(p.pos.dtype, copy=False)
-        p.vel = vel.astype(p.vel.dtype, copy=False)
+        p.vel = np.ascontiguousarray(v4[:, :dim]).astype(p.vel.dtype, copy=False)
         p.vel_m1 = vm.astype(p.vel_m1.dtype, copy=False)
-        p.rho = get("rho").astype(p.rho.dtype, copy=False)
+        p.rho = np.ascontiguousarray(v4[:, 3]).astype(p.rho.dtype, copy=False)
         p.rho_m1 = get("rhom").astype(p.rho_m1.dtype, copy=False)
         p.kind = get("kind")
         p.id = get("id").astype(np.int64)
@@ -197,6 +241,76 @@ class NumbaCUDA(ComputeBackend):
         self.sync_host(state)
         p = state.particles
         return {"pos": p.pos[rows], "vel": p.vel[rows], "rho": p.rho[rows], "kind": p.kind[rows]}
+
+    # -- multi-rank: displaced rows and edges --------------------------------------------
+    def take_displaced(self, state, domain) -> dict:
+        """Rows that left the slab (as Slabs.take_displaced). The check's bounding box
+        says whether any row is outside [lo, hi) along the split axis: if none is, nothing
+        crosses the bus and the device rows stay as they are (the host copy may be stale:
+        `prepare` re-uploads only when the host row set changed)."""
+        dv = state.extra.get("dev")
+        if dv is not None and dv.n and dv.box is not None and _plain_slabs(domain):
+            a = domain.axis
+            if dv.box[0, a] >= domain.lo and dv.box[1, a] < domain.hi:
+                empty = state.particles.take(np.zeros(0, np.int64))
+                return {-1: empty, 1: empty}
+        self.sync_host(state)
+        return domain.take_displaced(state)
+
+    def edge(self, state, domain, direction):
+        """Rows within `reach` of the neighbour's slab, as Slabs.edge, read from the device:
+        rows are sorted by (kind, cell) with the split axis slowest, so the candidates are
+        one contiguous range per kind (the cells from one cell short of the threshold on,
+        a margin for rows moved since the sort); only those ranges are copied, then cut
+        exactly on the host."""
+        from sphgraph.state import Halo
+        dv = state.extra.get("dev")
+        g = None if dv is None else dv.grid
+        if g is None or not dv.n or int(g["axes"][2]) != domain.axis or not _plain_slabs(domain):
+            self.sync_host(state)
+            return domain.edge(state, direction)
+        n0, n1, n2 = (int(x) for x in g["dims"])
+        ncells = int(g["ncells"])
+        plane = n0 * n1
+        if direction < 0:
+            thr = domain.lo + domain.reach
+            c = min(int(np.floor((thr - g["origin"][2]) * g["inv"])) + 1, n2 - 1)
+            idx = [0, (c + 1) * plane, ncells, ncells + (c + 1) * plane]
+        else:
+            thr = domain.hi - domain.reach
+            c = max(int(np.floor((thr - g["origin"][2]) * g["inv"])) - 1, 0)
+            idx = [c * plane, ncells, ncells + c * plane, 2 * ncells]
+        st = dv.start
+        se = [int(st[i:i + 1].copy_to_host()[0]) for i in idx]
+        dim = dv.dim
+        pos, vel, rho, kind = [], [], [], []
+        down = 0
+        for a, b in ((se[0], se[1]), (se[2], se[3])):
+            if b <= a:
+                continue
+            P = np.empty((b - a, dim), np.float64)
+            for d in range(dim):
+                P[:, d] = dv.arrays["p" + _VEC[d]][a:b].copy_to_host()
+            v4 = dv.arrays["vel4"][4 * a:4 * b].copy_to_host().reshape(-1, 4)
+            kd = dv.arrays["kind"][a:b].copy_to_host()
+            down += P.nbytes + v4.nbytes + kd.nbytes
+            x = P[:, domain.axis]
+            sel = x < thr if direction < 0 else x >= thr
+            pos.append(P[sel])
+            vel.append(v4[sel, :dim])
+            rho.append(v4[sel, 3])
+            kind.append(kd[sel])
+        _count(state, "d2h_bytes", "edge", down + 16)
+        p = state.particles
+        if pos:
+            h = Halo(pos=np.concatenate(pos).astype(p.pos.dtype, copy=False),
+                     vel=np.ascontiguousarray(np.concatenate(vel)).astype(p.vel.dtype, copy=False),
+                     rho=np.concatenate(rho).astype(p.rho.dtype, copy=False), kind=np.concatenate(kind))
+        else:
+            h = Halo(pos=np.zeros((0, dim), p.pos.dtype), vel=np.zeros((0, dim), p.vel.dtype),
+                     rho=np.zeros(0, p.rho.dtype), kind=np.zeros(0, p.kind.dtype))
+        state.bytes_sent += h.nbytes()
+        return h
 
     def host_arrays(self, state) -> dict:
         self.sync_host(state)
@@ -249,55 +363,74 @@ class NumbaCUDA(ComputeBackend):
             a = axes[kk]
             if a >= 0:
                 o_ax[a], n_ax[a], s_ax[a] = lo[kk], dims[kk], stride_perm[kk]
-        if dv.cell_cap < ncells + 1:
-            cap = int((ncells + 1) * 1.25) + 16
-            dv.arrays["start"] = cuda.device_array(cap, np.int64)
-            dv.arrays["counts"] = cuda.device_array(cap, np.int64)
+        # kind-split keys: fluid cells 0..ncells-1, boundary cells ncells..2 ncells-1
+        nk = 2 * ncells
+        if dv.cell_cap < nk + 1:
+            cap = int((nk + 1) * 1.25) + 16
+            dv.arrays["start"] = cuda.device_array(cap, np.int32)
             dv.cell_cap = cap
-        start, counts = dv.start, dv.counts
+            dv.arrays.pop("counts", None)
+        start = dv.start
+        counts = dv.scratch(np.int32, nk)            # the histogram in the (dead) pos4 records
+        if counts is None:
+            if "counts" not in dv.arrays or dv.arrays["counts"].shape[0] < nk:
+                dv.arrays["counts"] = cuda.device_array(dv.cell_cap, np.int32)
+            counts = dv.arrays["counts"]
         inv = 1.0 / c.cell_size
         if n:
-            k.k_fill[CK.blocks(ncells), CK.BLOCK](counts, ncells, 0)
-            k.k_keys_hist[CK.blocks(n), CK.BLOCK](dv.px, dv.py, dv.pz, n, dim, o_ax[0], o_ax[1], o_ax[2], inv,
-                                                   n_ax[0], n_ax[1], n_ax[2], s_ax[0], s_ax[1], s_ax[2],
-                                                   dv.keys, counts)
-            self._scan(dv, k, counts, start, ncells)
-            k.k_set_last[1, 1](start, ncells, n)
+            k.k_fill[CK.blocks(nk), CK.BLOCK](counts, nk, 0)
+            k.k_keys_hist2[CK.blocks(n), CK.BLOCK](dv.px, dv.py, dv.pz, dv.kind, n, dim, o_ax[0], o_ax[1],
+                                                    o_ax[2], inv, n_ax[0], n_ax[1], n_ax[2],
+                                                    s_ax[0], s_ax[1], s_ax[2], ncells, dv.keys, counts)
+            self._scan(dv, k, counts, start, nk)
+            k.k_set_last[1, 1](start, nk, n)
             # scatter: counts becomes the fill pointer (a copy of start)
-            k.k_copy[CK.blocks(ncells), CK.BLOCK](start, ncells, counts)
+            k.k_copy[CK.blocks(nk), CK.BLOCK](start, nk, counts)
             k.k_scatter[CK.blocks(n), CK.BLOCK](dv.keys, n, counts, dv.perm)
-            k.k_sort_cells[CK.blocks(ncells), CK.BLOCK](start, ncells, dv.perm)
+            k.k_sort_cells[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm)
             self._permute(state, dv, k)
         else:
-            k.k_fill[CK.blocks(ncells + 1), CK.BLOCK](start, ncells + 1, 0)
+            k.k_fill[CK.blocks(nk + 1), CK.BLOCK](start, nk + 1, 0)
         dv.grid = {"origin": lo, "dims": dims, "axes": axes, "inv": inv, "reach": reach,
                    "ncells": ncells, "size": c.cell_size}
         if n:
-            k.k_pressure[CK.blocks(n), CK.BLOCK](dv.rho, n, dv.prm_d(state), dv.press)
+            self._pack(state, dv, k, True)
         dv.host_stale = True
         self._sync()
 
     def _permute(self, state, dv, k):
+        """Every row array reordered by perm: gathered into the pos4 buffer (dead until
+        _pack rebuilds it) and copied back, so no array needs a twin."""
         n, perm = dv.n, dv.perm
         b = CK.blocks(n)
         A = dv.arrays
-        for d in range(dv.dim):       # float64 positions, and their float copies (no scratch)
-            ax = _VEC[d]
-            k.k_gather_pos[b, CK.BLOCK](A["p" + ax], perm, n, dv.ref[d], A["tmp64"], A["r" + ax])
-            A["p" + ax], A["tmp64"] = A["tmp64"], A["p" + ax]
-        # run-type arrays through the acceleration slots (dead until the forces)
+
+        def through(name):
+            a = A[name]
+            s = dv.scratch(a.dtype, n)
+            k.k_gather[b, CK.BLOCK](a, perm, n, s)
+            k.k_copy[b, CK.BLOCK](s, n, a)
+
+        for d in range(dv.dim):
+            through("p" + _VEC[d])
+        k.k_gather4[b, CK.BLOCK](A["vel4"], perm, n, A["pos4"])
+        k.k_copy[CK.blocks(4 * n), CK.BLOCK](A["pos4"], 4 * n, A["vel4"])
         hist = getattr(dv, "integrator", "verlet") == "verlet"   # Symplectic: history rewritten each step
-        names = [pre + _VEC[d] for pre in (("v", "vm") if hist else ("v",)) for d in range(dv.dim)] + \
-            (["rho", "rhom"] if hist else ["rho"])
-        scratch = ["a" + _VEC[d] for d in range(dv.dim)] + ["ar", "visc"]
-        for name in names:
-            s = scratch[0]
-            k.k_gather[b, CK.BLOCK](A[name], perm, n, A[s])
-            A[name], A[s] = A[s], A[name]
-        k.k_gather[b, CK.BLOCK](A["kind"], perm, n, A["tmp8"])
-        A["kind"], A["tmp8"] = A["tmp8"], A["kind"]
-        k.k_gather[b, CK.BLOCK](A["id"], perm, n, A["tmpid"])
-        A["id"], A["tmpid"] = A["tmpid"], A["id"]
+        if hist:
+            for d in range(dv.dim):
+                through("vm" + _VEC[d])
+            through("rhom")
+        through("kind")
+        through("id")
+
+    def _pack(self, state, dv, k, with_press):
+        """pos4 records from the float64 positions (and the pressure of rho)."""
+        ref = np.zeros(3)
+        ref[:dv.dim] = dv.ref
+        A = dv.arrays
+        k.k_pack[CK.blocks(dv.n), CK.BLOCK](A["px"], A["py"], A["pz"], A["vel4"], dv.n, dv.dim,
+                                             float(ref[0]), float(ref[1]), float(ref[2]), dv.prm_d(state),
+                                             bool(with_press), A["pos4"])
 
     def prepare_halo(self, state, halo) -> None:
         """Halo rows to the device, sorted by cell (host-staged; phase 2 sorts on the device)."""
@@ -343,7 +476,7 @@ class NumbaCUDA(ComputeBackend):
         n, dim = dv.n, dv.dim
         halos_exist = any(h is not None and h.n for h in state.halos.values())
         final = part == "interior" and not halos_exist and state.nranks == 1
-        A = dv.arrays
+        A = dv.A()
         if part == "interior":
             g = dv.grid
             src = (A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"], A["rho"], A["press"], A["kind"])
@@ -373,7 +506,21 @@ class NumbaCUDA(ComputeBackend):
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
-        if n:
+        if n and part == "interior":
+            g = dv.grid
+            nf, FB = dv.nf, CK.FORCE_BLOCK
+            geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
+                   int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
+                   dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
+            if nf:
+                k.k_forces_f[CK.blocks(nf, FB), FB](
+                    A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
+                    int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
+                    ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+            if n > nf:
+                k.k_forces_b[CK.blocks(n - nf, FB), FB](
+                    A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
+        elif n:
             k.k_forces[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
                 A["rho"], A["press"], A["kind"], n, *src,
@@ -402,7 +549,7 @@ class NumbaCUDA(ComputeBackend):
         gvec = np.zeros(3)
         gvec[:dv.dim] = state.consts.gravity
         ft = dv.dtype.type
-        A = dv.arrays
+        A = dv.A()
         if dv.n:
             k.k_reduce[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]),
                                                  ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"], A["visc"])
@@ -411,7 +558,7 @@ class NumbaCUDA(ComputeBackend):
     def dt_local(self, state) -> float:
         dv = state.extra["dev"]
         k = self._k(state)
-        A = dv.arrays
+        A = dv.A()
         zero = np.zeros(3)
         A["dtout"].copy_to_device(zero)
         if dv.n:
@@ -427,7 +574,7 @@ class NumbaCUDA(ComputeBackend):
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         dv = state.extra["dev"]
         k = self._k(state)
-        A = dv.arrays
+        A = dv.A()
         n, dim = dv.n, dv.dim
         ft = dv.dtype.type
         dt = ft(state.dt)
@@ -448,18 +595,14 @@ class NumbaCUDA(ComputeBackend):
             if integrator != "verlet" and stage == 1:
                 # the corrector's forces see the predicted positions (build_cells refreshes
                 # them for the next step); pressure: see FRESH_PRESSURE
-                for d in range(dim):
-                    ax = _VEC[d]
-                    k.k_rel[b, CK.BLOCK](A["p" + ax], n, dv.ref[d], A["r" + ax])
-                if FRESH_PRESSURE:
-                    k.k_pressure[b, CK.BLOCK](A["rho"], n, dv.prm_d(state), A["press"])
+                self._pack(state, dv, k, FRESH_PRESSURE)
         dv.host_stale = True
         self._sync()
 
     def check(self, state, lo, hi):
         dv = state.extra["dev"]
         k = self._k(state)
-        A = dv.arrays
+        A = dv.A()
         n, dim = dv.n, dv.dim
         init = np.array([np.inf] * 3 + [-np.inf] * 3)
         A["chk_box"].copy_to_device(init)
@@ -487,22 +630,24 @@ class NumbaCUDA(ComputeBackend):
 
     # -- benchmarks --------------------------------------------------------------------
     def count_pairs(self, state) -> int:
-        """Interior pairs within 2h counted on the device (plus halos on the host)."""
+        """Interior pairs within 2h counted on the device as DualSPHysics counts them
+        (every neighbour of a fluid row, the fluid neighbours of a boundary row; halos:
+        the host count)."""
         if any(h is not None and h.n for h in state.halos.values()):
             return super().count_pairs(state)
         dv = state.extra["dev"]
         k = self._k(state)
-        A = dv.arrays
+        A = dv.A()
         n = dv.n
         if not n:
             return 0
         g = dv.grid
         counts = cuda.device_array(n, np.int32)
         sup2 = dv.dtype.type(state.prm[P_SUPPORT2])
-        k.k_count_pairs[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
-            A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], n, A["rx"], A["ry"], A["rz"],
-            A["start"], *(float(x) for x in g["origin"]), float(g["inv"]), *(int(x) for x in g["dims"]),
-            *(int(x) for x in g["axes"]), int(g["reach"]), sup2, dv.dim, counts)
+        k.k_count_pairs2[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
+            A["px"], A["py"], A["pz"], A["pos4"], n, dv.nf, A["start"], int(g["ncells"]),
+            *(float(x) for x in g["origin"]), float(g["inv"]), *(int(x) for x in g["dims"]),
+            *(int(x) for x in g["axes"]), int(g["reach"]), sup2, counts)
         return int(counts.copy_to_host().astype(np.int64).sum())
 
     def state_bytes(self, state) -> int:

@@ -138,7 +138,10 @@ def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False
 # Each takes (ctx, task): ctx is a `sphgraph.scheduler.RankContext`.
 
 def run_send_displaced(ctx, task):
-    out = ctx.domain.take_displaced(ctx.state)     # {-1: Particles, +1: Particles}
+    # a device-resident backend first brings the host rows up to date if any row left
+    # the slab (its `take_displaced`); otherwise the host rows are current
+    take = getattr(ctx.compute, "take_displaced", None)
+    out = take(ctx.state, ctx.domain) if take else ctx.domain.take_displaced(ctx.state)
     for m, d in zip(task.sends, task.meta["dirs"]):
         ctx.comm.isend(ctx.rank + m.peer, m.tag, out[d])
 
@@ -155,7 +158,8 @@ def run_build_cells(ctx, task):
 
 def run_send_edges(ctx, task):
     for m, d in zip(task.sends, task.meta["dirs"]):
-        ctx.comm.isend(ctx.rank + m.peer, m.tag, ctx.domain.edge(ctx.state, d))
+        edge = getattr(ctx.compute, "edge", None)    # device backends: rows sliced on the device
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, edge(ctx.state, ctx.domain, d) if edge else ctx.domain.edge(ctx.state, d))
 
 
 def run_recv_halo(ctx, task):
