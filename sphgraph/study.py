@@ -33,15 +33,20 @@ DEFAULT_AXES = {"integrator": ["verlet", "symplectic"], "kernel": ["wendland", "
 FIELDS = ["case", "dp", *AXES, "error", "wall_s", "steps", "particles", "status", "pareto"]
 
 
-def baseline(case) -> dict:
+def baseline(case, extra_axes=()) -> dict:
+    from .config import PhysicsConfig
     ph = case.scene.get("physics", {})
-    return {"integrator": ph.get("integrator", "verlet"), "kernel": ph.get("kernel", "wendland"),
+    base = {"integrator": ph.get("integrator", "verlet"), "kernel": ph.get("kernel", "wendland"),
             "diffusion": ph.get("diffusion", "fourtakas"), "precision": "float64", "backend": "numba-cpu"}
+    for k in extra_axes:     # any other physics field swept (e.g. visc_alpha)
+        base[k] = ph.get(k, getattr(PhysicsConfig(), k))
+    return base
 
 
 def configurations(case, dps, axes) -> list[dict]:
     """One factor at a time around the baseline, at every dp (duplicates removed)."""
-    base = baseline(case)
+    extra = [k for k in axes if k not in AXES]
+    base = baseline(case, extra)
     out, seen = [], set()
     for dp in dps:
         variants = [dict(base)]
@@ -49,7 +54,7 @@ def configurations(case, dps, axes) -> list[dict]:
             for v in values:
                 variants.append(dict(base, **{ax: v}))
         for v in variants:
-            key = (dp, *(v[a] for a in AXES))
+            key = (dp, *(v[a] for a in list(AXES) + extra))
             if key not in seen:
                 seen.add(key)
                 out.append(dict(v, dp=dp))
@@ -58,7 +63,7 @@ def configurations(case, dps, axes) -> list[dict]:
 
 def run_one(case_name: str, cfg: dict, error_key: str) -> dict:
     from .validation.cases import run_case
-    overrides = {k: cfg[k] for k in ("integrator", "kernel", "diffusion")}
+    overrides = {k: v for k, v in cfg.items() if k not in ("dp", "precision", "backend")}
     if cfg["diffusion"] == "none":
         overrides["delta"] = 0.0
     row = dict(cfg, case=case_name, status="ok")
@@ -80,8 +85,9 @@ def cheapest(rows, target: float):
 
 
 def describe(r) -> str:
+    extra = "".join(f" {k}={r[k]}" for k in r if k not in FIELDS)
     return (f"dp={r['dp']:g} {r['integrator']} {r['kernel']} diffusion={r['diffusion']} "
-            f"{r['precision']} {r['backend']}: error {r['error']:.4g}, {r['wall_s']:.1f} s")
+            f"{r['precision']} {r['backend']}{extra}: error {r['error']:.4g}, {r['wall_s']:.1f} s")
 
 
 def read_csv(path) -> list[dict]:
@@ -97,7 +103,8 @@ def read_csv(path) -> list[dict]:
 
 
 def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, from_csv=None,
-              log=print) -> dict:
+              log=print, configs=None) -> dict:
+    """Run (or read, `from_csv`) the sweep; `configs` replaces the one-at-a-time list."""
     from .plots import pareto_front, plot_study
     from .validation.cases import load_case
     case = load_case(case_name)
@@ -112,15 +119,16 @@ def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, 
         if axes is None or not axes:
             axes = {k: v for k, v in DEFAULT_AXES.items() if k in st.get("axes", AXES)}
         rows = []
-        for cfg in configurations(case, dps, axes):
+        for cfg in configs or configurations(case, dps, axes):
             r = run_one(case.name, cfg, error_key)
             log(describe(r) + ("" if r["status"] == "ok" else f" [{r['status']}]"))
             rows.append(r)
     front = set(pareto_front([r["wall_s"] for r in rows], [r["error"] for r in rows]).tolist())
     for i, r in enumerate(rows):
         r["pareto"] = int(i in front)
+    fields = FIELDS[:1 + 1 + len(AXES)] + sorted({k for r in rows for k in r} - set(FIELDS)) + FIELDS[2 + len(AXES):]
     with open(out / "study.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
+        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow(r)
