@@ -262,6 +262,8 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      else "xyz"[saved.meta["axis"]], invariants=invariants)
     scene = sim.scene
     t_end = scene.end_time
+    from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
+    sampler = ProbeSampler(scene) if write_output and ("probes" in scene.extra or "forces" in scene.extra) else None
     if saved is not None:
         ck.check_scene(saved, scene)
         ck.restore(sim, saved)
@@ -306,11 +308,15 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     try:
         if write_output and saved is None:
             save_frame()
+        if sampler is not None:
+            sampler.sample(sim)
         next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
         t0 = time.perf_counter()
         compile_s = 0.0
         while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
             sim.step()
+            if sampler is not None:
+                sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
             if sim.step_count == start_step + 1:
                 compile_s = time.perf_counter() - t0
                 prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")
@@ -338,6 +344,8 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
         prog.close()
         _write_timing(writer, sim)   # on every rank: gathers the ranks' timings under MPI
         if writer is not None:
+            if sampler is not None:
+                sampler.write(writer)
             writer.close()
         raise
     except Exception as e:
@@ -349,6 +357,8 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     prog.close()
     _write_timing(writer, sim)
     if writer is not None:
+        if sampler is not None:
+            sampler.write(writer)
         writer.close()
     return RunResult(out_dir=out_dir, steps=sim.step_count, time=sim.time, wall_s=wall,
                      compile_s=compile_s, particles=sim.n_total, fluid_particles=sim.n_fluid, dim=sim.dim,

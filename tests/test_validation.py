@@ -74,7 +74,7 @@ def test_poiseuille_series_solution_limits():
 # --------------------------------------------------------------------------- probes
 def _tank(extra=None):
     d = {"format": 1, "name": "tank", "dim": 2, "dp": 0.02, "end_time": 0.1,
-         "domain": {"min": [-0.08, -0.08], "max": [1.08, 1.0], "origin": [0.0, 0.0]},
+         "domain": {"min": [-0.2, -0.2], "max": [1.2, 1.0], "origin": [0.0, 0.0]},
          "initial": {"hydrostatic": True},
          "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.0, 0.5]}],
          "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.0, 0.8], "layers": 3}]}
@@ -145,3 +145,24 @@ def test_study_csv_png_pareto_and_target(tmp_path, capsys):
     assert (tmp_path / "study.png").stat().st_size > 1000
     assert main(["study", "poiseuille", "--from-csv", str(tmp_path / "study.csv"), "--out", str(tmp_path),
                  "--target-error", "1e-9"]) == 1
+
+
+def test_run_writes_probes_and_forces_groups(tmp_path):
+    """A scene with [probes] and [forces]: `sphgraph.run` samples them at their interval and
+    writes /probes and /forces; a bad table is refused before anything is written."""
+    import sphgraph
+    from sphgraph.io import read_group
+    sc = _tank({"end_time": 0.02, "dp": 0.05,
+                "probes": {"interval": 0.005, "points": [{"name": "P", "position": [0.5, 0.2]}],
+                           "heights": [{"name": "H", "position": [0.5]}]},
+                "forces": {"interval": 0.0, "bodies": [{"name": "tank", "min": [-1, -1], "max": [2, 2]}]}})
+    res = sphgraph.run(sc, out=tmp_path / "o", progress=False)
+    g = read_group(res.out_dir, "probes")
+    assert len(g["time"]) == 5 and np.allclose(np.diff(g["time"]), 0.005, atol=5e-4)  # first step past each mark
+    assert g["P"]["velocity"].shape == (5, 2) and np.all(g["P"]["pressure"] > 0.9 * 1000 * 9.81 * 0.3)
+    f = read_group(res.out_dir, "forces")
+    assert len(f["time"]) == res.steps + 1 and f["tank"]["force"].shape == (res.steps + 1, 2)
+    bad = _tank({"probes": {"points": [{"name": "P"}]}})
+    with pytest.raises(InputError):
+        sphgraph.run(bad, out=tmp_path / "bad", progress=False)
+    assert not (tmp_path / "bad").exists()
