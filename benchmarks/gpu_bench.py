@@ -54,7 +54,53 @@ def bare_step(sim):
     sim.check()
 
 
-def one(dp, steps, warmup, precision, profile_steps, bare):
+def kernel_info(dtype, block):
+    """Registers, local memory and an occupancy estimate of the force kernels (per
+    compiled signature), from numba's compiled-kernel attributes."""
+    from numba import cuda
+    from sphgraph.backends.compute import cuda_kernels as CK
+    out = {}
+    k = CK.build(dtype)
+    dev = cuda.get_current_device()
+    regs_sm = 65536
+    for name in ("k_forces_f", "k_forces_b", "k_forces"):
+        disp = getattr(k, name)
+        for i, (sig, kern) in enumerate(disp.overloads.items()):
+            regs = int(getattr(kern, "regs_per_thread", 0) or 0)
+            info = {"regs_per_thread": regs,
+                    "local_mem_per_thread": int(getattr(kern, "local_mem_per_thread", 0) or 0),
+                    "max_threads_per_block": int(getattr(kern, "max_threads_per_block", 0) or 0)}
+            if regs:
+                per_warp = -(-regs * 32 // 256) * 256
+                warps = regs_sm // per_warp
+                wpb = max(block // 32, 1)
+                blocks_sm = min(warps // wpb, 32)
+                info["occupancy_est"] = min(blocks_sm * wpb, 64) / 64
+            out[f"{name}#{i}"] = info
+    out["sm_count"] = int(dev.MULTIPROCESSOR_COUNT)
+    return out
+
+
+def sweep_blocks(sim, blocks, steps):
+    """Steps/s of the same simulation with each force-kernel block size."""
+    from numba import cuda
+    from sphgraph.backends.compute import cuda_kernels as CK
+    keep = CK.FORCE_BLOCK
+    out = {}
+    for b in blocks:
+        CK.FORCE_BLOCK = int(b)
+        sim.step()
+        cuda.synchronize()
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            sim.step()
+        cuda.synchronize()
+        out[str(b)] = steps / (time.perf_counter() - t0)
+    CK.FORCE_BLOCK = keep
+    return out
+
+
+def one(dp, steps, warmup, precision, profile_steps, bare, blocks=()):
     from numba import cuda
     from sphgraph.solver import Simulation
     cuda.synchronize()
@@ -109,6 +155,12 @@ def one(dp, steps, warmup, precision, profile_steps, bare):
         wall = min(wall, wall2)
     pairs = sim.compute.count_pairs(st)
     cuda.synchronize()
+    sweep = sweep_blocks(sim, blocks, steps) if blocks else None
+    from sphgraph.backends.compute import cuda_kernels as CK
+    try:
+        kinfo = kernel_info(st.dtype, CK.FORCE_BLOCK)
+    except Exception as e:  # noqa: BLE001  (simulator: no compiled kernels)
+        kinfo = {"error": repr(e)}
     peak = max(peak, _used(cuda)[0])
     evals = steps * sim.stages
     out = {
@@ -124,6 +176,9 @@ def one(dp, steps, warmup, precision, profile_steps, bare):
         "profile_share": {k: v / prof_total for k, v in prof.items()} if prof_total else {},
         "bus_bytes_per_step": {k: (b1.get(k, 0) - b0.get(k, 0)) / steps for k in b1},
         "device": sim.compute.device_name(),
+        "force_block": __import__("sphgraph.backends.compute.cuda_kernels", fromlist=["x"]).FORCE_BLOCK,
+        "kernels": kinfo, "block_sweep_steps_per_s": sweep,
+        "pair_count": "DualSPHysics: all neighbours of fluid rows, fluid neighbours of boundary rows",
         "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
         "command": " ".join(sys.argv),
     }
@@ -166,6 +221,8 @@ def main(argv=None):
     ap.add_argument("--precision", default="float32")
     ap.add_argument("--bare", action="store_true", help="also time a bare loop (scheduler overhead)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--blocks", type=int, nargs="*", default=[],
+                    help="also time the force kernels at these block sizes (same run)")
     a = ap.parse_args(argv)
     res = {"runs": [], "roofline": None}
     try:
@@ -175,7 +232,7 @@ def main(argv=None):
     print(json.dumps(res["roofline"]), flush=True)
     for dp in a.dp:
         try:
-            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare)
+            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare, a.blocks)
         except Exception as e:  # noqa: BLE001  (e.g. out of memory at the largest size)
             r = {"dp": dp, "error": repr(e)}
         res["runs"].append(r)

@@ -109,6 +109,29 @@ def _count(state, direction, kind, nbytes):
     by[k] = by.get(k, 0) + int(nbytes)
 
 
+_SELECTED = []
+
+
+def _select_device():
+    """Under mpiexec, one rank per GPU: the node-local rank (MPICH's MPI_LOCALRANKID,
+    Open MPI's OMPI_COMM_WORLD_LOCAL_RANK, else the global rank) picks GPU rank % ngpu,
+    before any other CUDA call of this process. SPHGRAPH_CUDA_DEVICE overrides."""
+    if _SELECTED or CK.SIMULATOR:
+        return
+    _SELECTED.append(True)
+    v = os.environ.get("SPHGRAPH_CUDA_DEVICE")
+    if v is None:
+        for var in ("MPI_LOCALRANKID", "OMPI_COMM_WORLD_LOCAL_RANK", "PMI_RANK", "OMPI_COMM_WORLD_RANK"):
+            if os.environ.get(var) is not None:
+                v = os.environ[var]
+                break
+    if v is None:
+        return
+    ngpu = len(cuda.gpus)
+    if ngpu > 1:
+        cuda.select_device(int(v) % ngpu)
+
+
 def _plain_slabs(domain) -> bool:
     """The device edge/displaced paths reproduce sphgraph.domain.Slabs; other domains
     (e.g. periodic images) get current host rows and their own methods."""
@@ -123,6 +146,7 @@ class NumbaCUDA(ComputeBackend):
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
+        _select_device()
 
     def device_name(self) -> str:
         if CK.SIMULATOR:
