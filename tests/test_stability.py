@@ -80,15 +80,16 @@ def test_dbc_penetration_at_high_impact_speed():
 
 
 def test_no_density_diffusion_pressure_noise():
-    """Dam break at dp = 0.04, t ~ 0.08 s: without density diffusion the interior pressure
-    noise exceeds 7 % of rho g H; with Fourtakas diffusion (delta 0.1) it stays below."""
+    """Dam break at dp = 0.05, t = 0.064 s: without density diffusion the interior pressure
+    noise (each particle against its neighbours' Shepard mean) is ~10 % of rho g H, above the
+    5 % bound; with Fourtakas diffusion (delta 0.1) it is ~2 %."""
     scale = 1000.0 * 9.81 * 2.0
-    v = watch(sim_of(tank_scene(diffusion="none", delta=0.0)), 600, every=120, p_scale=scale,
-              noise_bound=THRESHOLDS["pressure_noise"] + 0.02)
+    v = watch(sim_of(tank_scene(dp=0.05, diffusion="none", delta=0.0)), 400, every=80, p_scale=scale,
+              noise_bound=THRESHOLDS["pressure_noise"])
     assert v.name == "pressure-noise", v
-    v = watch(sim_of(tank_scene(diffusion="fourtakas", delta=0.1)), 600, every=120, p_scale=scale,
-              noise_bound=THRESHOLDS["pressure_noise"] + 0.02)
-    assert v.stable, v
+    v = watch(sim_of(tank_scene(dp=0.05, diffusion="fourtakas", delta=0.1)), 400, every=80, p_scale=scale,
+              noise_bound=THRESHOLDS["pressure_noise"])
+    assert v.stable and v.value < 0.04, v
 
 
 def test_stability_map_cells():
@@ -97,3 +98,13 @@ def test_stability_map_cells():
     assert got[(0.2, 20.0)] == "stable"
     assert got[(2.0, 20.0)] == "blow-up"
     assert got[(0.2, 1.0)] == "compressibility"
+
+
+def test_cli_plot_stability(tmp_path, capsys):
+    from sphgraph.cli import main
+    png = tmp_path / "map.png"
+    assert main(["plot", "stability", "--cfl", "0.2,3.2", "--coefsound", "20", "--steps", "20",
+                 "-o", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "cfl 0.2 coefsound 20: stable" in out and "cfl 3.2 coefsound 20: blow-up" in out
+    assert png.stat().st_size > 1000
