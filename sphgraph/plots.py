@@ -497,9 +497,15 @@ def plot_stability(cells: list, path, x="cfl", y="coefsound", title="") -> str:
             ax.annotate(f"{c['value']:.2g}", (c[x], c[y]), textcoords="offset points", xytext=(0, 9),
                         fontsize=6, ha="center")
     ax.set_xscale("log")
+    ax.set_yscale("log")
+    for setter, key in ((ax.set_xticks, x), (ax.set_yticks, y)):
+        vals = sorted({c[key] for c in cells})
+        setter(vals, [f"{v:g}" for v in vals])
+    ax.minorticks_off()
     ax.set_xlabel(x)
     ax.set_ylabel(y)
-    ax.set_title(title or f"where the method fails: {x} x {y}", fontsize=9)
-    ax.legend(fontsize=7, loc="best")
+    ax.set_title(title or f"where the method fails: {x} x {y} (label: worst density variation, "
+                 "or energy growth factor)", fontsize=8)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(alpha=0.3)
     return _save(fig, path)
