@@ -446,16 +446,20 @@ def pareto_front(cost, err) -> np.ndarray:
     return np.array(front, int)
 
 
-def plot_study(rows: list, path, title: str = "", error_key: str = "error") -> str:
+def plot_study(rows: list, path, title: str = "", error_key: str = "error",
+               xlabel: str = "wall time [s] of the run (this machine)") -> str:
     """Error against wall time (log-log) of a `sphgraph study`, Pareto front marked."""
     path = _check_path(path, "study")
     fig = _new_figure((8.0, 5.5))
     ax = fig.subplots()
     ok = [r for r in rows if np.isfinite(r[error_key]) and r["wall_s"] > 0]
     groups: dict = {}
+    std = {"case", "dp", "integrator", "kernel", "diffusion", "precision", "backend", "error", "wall_s", "steps",
+           "particles", "status", "pareto"}
     for r in ok:
-        groups.setdefault(f"{r['integrator']}, {r['kernel']}, {r['diffusion']}, {r['precision']}, {r['backend']}",
-                          []).append(r)
+        extra = "".join(f", {k}={r[k]}" for k in sorted(r) if k not in std and k != error_key)
+        groups.setdefault(f"{r['integrator']}, {r['kernel']}, {r['diffusion']}, {r['precision']}, {r['backend']}"
+                          + extra, []).append(r)
     markers = "osD^v<>ph*"
     for i, (label, rs) in enumerate(sorted(groups.items())):
         rs = sorted(rs, key=lambda r: r["dp"])
@@ -473,7 +477,7 @@ def plot_study(rows: list, path, title: str = "", error_key: str = "error") -> s
     failed = [r for r in rows if not np.isfinite(r[error_key])]
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("wall time [s] (2 CPU cores unless the backend says otherwise)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(error_key.replace("_", " "))
     ax.set_title((title or "error against cost") + (f"  ({len(failed)} runs failed)" if failed else ""),
                  fontsize=9)
