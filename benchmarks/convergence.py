@@ -1,6 +1,6 @@
 """Convergence order of the Poiseuille start-up case (validation case `poiseuille`).
 
-    python benchmarks/convergence.py [--n 10,20,40,80] [--integrator symplectic]
+    python benchmarks/convergence.py [--n 10,20,40,80] [--integrator symplectic] [--boundary mdbc-noslip]
 
 Runs H/dp = n for each n, prints the L2 error of u(y) / u_max at t = 0.2 s against the
 series solution (Morris et al. 1997), the order between successive resolutions and the
@@ -17,6 +17,7 @@ from sphgraph.validation.cases import load_case, poiseuille_error
 ap = argparse.ArgumentParser()
 ap.add_argument("--n", default="10,20,40,80")
 ap.add_argument("--integrator", default="symplectic")
+ap.add_argument("--boundary", default="dbc", help="dbc | mdbc | mdbc-noslip (wall treatment)")
 args = ap.parse_args()
 case = load_case("poiseuille")
 H = float(case.params["H"])
@@ -26,7 +27,8 @@ print(f"{'H/dp':>5} {'particles':>9} {'steps':>6} {'wall_s':>7} {'L2 err/umax':>
 for n in ns:
     dp = H / n
     t0 = time.perf_counter()
-    e, _, sim = poiseuille_error(case, dp, case.params, "numba-cpu", None, {"integrator": args.integrator})
+    e, _, sim = poiseuille_error(case, dp, dict(case.params, boundary=args.boundary), "numba-cpu", None,
+                                 {"integrator": args.integrator})
     wall = time.perf_counter() - t0
     order = "" if not errs else f"{np.log(errs[-1] / e) / np.log(dps[-1] / dp):6.2f}"
     dps.append(dp)

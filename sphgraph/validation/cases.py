@@ -148,8 +148,15 @@ def scene_for(case: Case, dp: float, overrides: dict, **top):
     return Scene.from_dict(d, source=f"case {case.name}")
 
 
-def _sim(scene, backend, precision, **kw):
+def _sim(scene, backend, precision, boundary="dbc", **kw):
+    """A Simulation; boundary "mdbc" / "mdbc-noslip" adds the mDBC user task (numba-cpu, 1 rank)."""
     from ..solver import Simulation
+    if boundary != "dbc":
+        from ..backends.compute.cpu_mdbc import mdbc_schedule, mdbc_tasks
+        sched = kw.pop("schedule", None)
+        order = sched["order"] if isinstance(sched, dict) else None
+        kw["schedule"] = mdbc_schedule(order)
+        kw["user_tasks"] = list(kw.pop("user_tasks", [])) + mdbc_tasks(scene, noslip=boundary == "mdbc-noslip")
     try:
         return Simulation(scene, backend=backend, precision=precision, invariants=False, **kw)
     except TypeError:   # a solver without the invariants option
@@ -183,7 +190,7 @@ def run_surge_front(case, dp, prm, backend, precision, overrides):
     T0, T1 = prm["window"]
     scale = math.sqrt(2 * G / a)
     scene = scene_for(case, dp, overrides)
-    sim = _sim(scene, backend, precision)
+    sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     Ts, Zs, Hs = [0.0], [1.0], [2.0]
     T_end = float(prm.get("T_end", T1 + 0.1))
     while sim.time * scale < T_end:
@@ -231,7 +238,7 @@ def run_hydrostatic(case, dp, prm, backend, precision, overrides):
     the fluid's weight, averaged over [t_avg0, end]."""
     from ..probes import ProbeSampler
     scene = scene_for(case, dp, overrides, end_time=float(prm["end_time"]))
-    sim = _sim(scene, backend, precision)
+    sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     rho0 = scene.physics.rho0
     H = scene.hswl
     zs = scene.surface_level()
@@ -286,7 +293,7 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
     spec = {"interval": float(prm["dT"]) / scale, "points": [("P1", pprobe)], "heights": [],
             "force_interval": 0.0, "bodies": []}
     sampler = ProbeSampler(scene, spec)
-    sim = _sim(scene, backend, precision)
+    sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     rho0 = scene.physics.rho0
     while sim.time < scene.end_time - 1e-12:
         sim.step()
@@ -402,7 +409,8 @@ def poiseuille_scene(case, dp, prm, overrides):
 
 def poiseuille_error(case, dp, prm, backend, precision, overrides):
     scene, L = poiseuille_scene(case, dp, prm, overrides)
-    sim = _sim(scene, backend, precision, schedule=periodic_schedule(), user_tasks=periodic_tasks(L))
+    sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"), schedule=periodic_schedule(),
+               user_tasks=periodic_tasks(L))
     while sim.time < scene.end_time - 1e-12:
         sim.step()
     p = _fluid(sim)
