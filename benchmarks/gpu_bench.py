@@ -63,8 +63,10 @@ def kernel_info(dtype, block):
     k = CK.build(dtype)
     dev = cuda.get_current_device()
     regs_sm = 65536
-    for name in ("k_forces_f", "k_forces_b", "k_forces"):
-        disp = getattr(k, name)
+    disps = [(name, getattr(k, name)) for name in ("k_forces",)]
+    for j, ns in enumerate(CK._FORCES.values()):
+        disps += [(f"{name}[build {j}]", getattr(ns, name)) for name in ("k_forces_f", "k_forces_b")]
+    for name, disp in disps:
         for i, (sig, kern) in enumerate(disp.overloads.items()):
             regs = int(getattr(kern, "regs_per_thread", 0) or 0)
             info = {"regs_per_thread": regs,
@@ -81,14 +83,19 @@ def kernel_info(dtype, block):
     return out
 
 
-def sweep_blocks(sim, blocks, steps):
-    """Steps/s of the same simulation with each force-kernel block size."""
+def sweep_blocks(sim, blocks, steps, maxregs=()):
+    """Steps/s of the same simulation with each force-kernel block size (and each
+    register cap: `max_registers`, block 128; the first step compiles)."""
     from numba import cuda
     from sphgraph.backends.compute import cuda_kernels as CK
     keep = CK.FORCE_BLOCK
     out = {}
-    for b in blocks:
-        CK.FORCE_BLOCK = int(b)
+    for b in list(blocks) + [f"maxreg{m}" for m in maxregs]:
+        if isinstance(b, str):
+            CK.FORCE_BLOCK = keep
+            CK.MAXREG = int(b[6:])
+        else:
+            CK.FORCE_BLOCK = int(b)
         sim.step()
         cuda.synchronize()
         t0 = time.perf_counter()
@@ -97,10 +104,11 @@ def sweep_blocks(sim, blocks, steps):
         cuda.synchronize()
         out[str(b)] = steps / (time.perf_counter() - t0)
     CK.FORCE_BLOCK = keep
+    CK.MAXREG = 0
     return out
 
 
-def one(dp, steps, warmup, precision, profile_steps, bare, blocks=()):
+def one(dp, steps, warmup, precision, profile_steps, bare, blocks=(), maxregs=()):
     from numba import cuda
     from sphgraph.solver import Simulation
     cuda.synchronize()
@@ -155,7 +163,7 @@ def one(dp, steps, warmup, precision, profile_steps, bare, blocks=()):
         wall = min(wall, wall2)
     pairs = sim.compute.count_pairs(st)
     cuda.synchronize()
-    sweep = sweep_blocks(sim, blocks, steps) if blocks else None
+    sweep = sweep_blocks(sim, blocks, steps, maxregs) if (blocks or maxregs) else None
     from sphgraph.backends.compute import cuda_kernels as CK
     try:
         kinfo = kernel_info(st.dtype, CK.FORCE_BLOCK)
@@ -223,6 +231,8 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--blocks", type=int, nargs="*", default=[],
                     help="also time the force kernels at these block sizes (same run)")
+    ap.add_argument("--maxreg", type=int, nargs="*", default=[],
+                    help="also time the force kernels compiled with these register caps (same run)")
     a = ap.parse_args(argv)
     res = {"runs": [], "roofline": None}
     try:
@@ -232,7 +242,7 @@ def main(argv=None):
     print(json.dumps(res["roofline"]), flush=True)
     for dp in a.dp:
         try:
-            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare, a.blocks)
+            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare, a.blocks, a.maxreg)
         except Exception as e:  # noqa: BLE001  (e.g. out of memory at the largest size)
             r = {"dp": dp, "error": repr(e)}
         res["runs"].append(r)

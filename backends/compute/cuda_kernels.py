@@ -60,15 +60,17 @@ def _cast_consts(code, ft, remap=None):
     return code.replace(co_consts=tuple(out))
 
 
-def _clone(f, dtype, memo):
+def _clone(f, dtype, memo, extra=None):
     """A copy of the Python function `f` (or of an @njit dispatcher's py_func) whose
-    float literals are of `dtype` and whose @njit callees are CUDA device copies."""
+    float literals are of `dtype` and whose @njit callees are CUDA device copies
+    (`extra`: more globals, e.g. compile-time constants)."""
     f = getattr(f, "py_func", f)
     code = f.__code__
     if np.dtype(dtype) != np.float64:
         remap = F32_REMAP.get(f.__name__) if np.dtype(dtype) == np.float32 else None
         code = _cast_consts(code, np.dtype(dtype).type, remap)
     g = dict(f.__globals__)
+    g.update(extra or {})
     for name in code.co_names:
         v = g.get(name)
         if isinstance(v, Dispatcher):
@@ -723,11 +725,21 @@ def k_pack(px, py, pz, vel4, n, dim, ref0, ref1, ref2, prm, with_press, pos4):
 
 def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
-               prm, dim, kernel_id, ddt_kind, laminar, final, gx, gy, gz,
+               prm_, dim, kernel_id_, ddt_kind_, laminar_, final, gx, gy, gz,
                ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """Fluid destinations rows i0..i1-1 against the rank's own rows (kind-split grid):
     per row of cells, its fluid candidates then its boundary candidates. Pair physics,
-    row cut and results as k_forces."""
+    row cut and results as k_forces.
+
+    Built by `force_kernels` with the run's parameters and options as compile-time
+    constants (PRMC, KID, DDTK, LAM): the parameters sit in constant memory (or fold
+    into the instructions) instead of ~20 registers of hoisted loads, and the branches
+    of unused options (cubic kernel, Molteni, laminar) are not compiled. prm_ and
+    the *_ options arguments are ignored."""
+    prm = cuda.const.array_like(PRMC)
+    kernel_id = KID
+    ddt_kind = DDTK
+    laminar = LAM
     i = cuda.grid(1) + i0
     if i >= i1:
         return
@@ -854,8 +866,11 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
-               prm, dim, kernel_id, final, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """Boundary destinations rows i0..i1-1: fluid candidates only (DBC continuity)."""
+               prm_, dim, kernel_id_, final, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
+    """Boundary destinations rows i0..i1-1: fluid candidates only (DBC continuity).
+    Constants as k_forces_f."""
+    prm = cuda.const.array_like(PRMC)
+    kernel_id = KID
     i = cuda.grid(1) + i0
     if i >= i1:
         return
@@ -1009,8 +1024,8 @@ def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_si
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
             "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
             "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
-            "k_keys_hist2", "k_gather4", "k_pack", "k_forces_f", "k_forces_b", "k_count_pairs2")
-_FAST = {"k_forces", "k_count_pairs", "k_forces_f", "k_forces_b", "k_count_pairs2"}
+            "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2")
+_FAST = {"k_forces", "k_count_pairs", "k_count_pairs2"}
 _BUILT: dict = {}
 
 
@@ -1026,6 +1041,36 @@ def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
         _BUILT[key] = types.SimpleNamespace(**{
             name: kernel(g[name], dt, memo, fastmath=fm and name in _FAST) for name in _KERNELS})
     return _BUILT[key]
+
+
+MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "0"))   # 0: the compiler's choice
+_FORCES: dict = {}
+
+
+def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | None = None,
+                  max_registers: int | None = None) -> types.SimpleNamespace:
+    """k_forces_f / k_forces_b for one run: `prm` (the run's parameter vector) and the
+    options become compile-time constants (cached per distinct set; a new scene or dp
+    compiles once more)."""
+    dt = np.dtype(dtype)
+    fm = (dt == np.float32) if fastmath is None else bool(fastmath)
+    mr = MAXREG if max_registers is None else int(max_registers)
+    pc = np.ascontiguousarray(prm, dt)
+    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr)
+    if key not in _FORCES:
+        memo = {}
+        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar)}
+        out = {}
+        for name in ("k_forces_f", "k_forces_b"):
+            fn = _clone(globals()[name], dt, memo, extra)
+            if SIMULATOR:
+                out[name] = cuda.jit(fn)
+            elif mr:
+                out[name] = cuda.jit(fastmath=fm, max_registers=mr)(fn)
+            else:
+                out[name] = cuda.jit(fastmath=fm)(fn)
+        _FORCES[key] = types.SimpleNamespace(**out)
+    return _FORCES[key]
 
 
 def blocks(n: int, block: int = BLOCK) -> int:

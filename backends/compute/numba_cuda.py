@@ -536,13 +536,15 @@ class NumbaCUDA(ComputeBackend):
             geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                    int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                    dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
+            kf = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]),
+                                  int(state.opt[O_LAMINAR]))
             if nf:
-                k.k_forces_f[CK.blocks(nf, FB), FB](
+                kf.k_forces_f[CK.blocks(nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
                     ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
             if n > nf:
-                k.k_forces_b[CK.blocks(n - nf, FB), FB](
+                kf.k_forces_b[CK.blocks(n - nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
             k.k_forces[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
