@@ -143,6 +143,13 @@ def scene_for(case: Case, dp: float, overrides: dict, **top):
     from ..scene import Scene
     d = copy.deepcopy(case.scene)
     d["dp"] = dp
+    layers = top.pop("layers", None)
+    if layers is not None:   # wall thickness override (e.g. mDBC wants the kernel's support)
+        for b in d.get("boundary", []):
+            b["layers"] = int(layers)
+        margin = (int(layers) + 1) * dp
+        d["domain"] = dict(d["domain"], min=[min(x, -margin) for x in d["domain"]["min"]])
+        d["domain"]["max"] = [x + margin for x in d["domain"]["max"]]
     d.update(top)
     d.setdefault("physics", {}).update({k: v for k, v in overrides.items()})
     return Scene.from_dict(d, source=f"case {case.name}")
@@ -189,7 +196,7 @@ def run_surge_front(case, dp, prm, backend, precision, overrides):
     a = float(prm["a"])
     T0, T1 = prm["window"]
     scale = math.sqrt(2 * G / a)
-    scene = scene_for(case, dp, overrides)
+    scene = scene_for(case, dp, overrides, layers=prm.get("layers"))
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     Ts, Zs, Hs = [0.0], [1.0], [2.0]
     T_end = float(prm.get("T_end", T1 + 0.1))
