@@ -89,6 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", choices=["float32", "float64"])
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="physics override, e.g. --set integrator=symplectic (repeatable)")
+    p.add_argument("--boundary", choices=["dbc", "mdbc", "mdbc-noslip"], default=None,
+                   help="wall treatment (default: the case's; mDBC: numba-cpu, one rank)")
     p.add_argument("--out", default="out/validate", help="directory of the comparison plot PNG")
 
     p = sub.add_parser("study", help="sweep resolution and methods of a case: error against wall time "
@@ -286,7 +288,8 @@ def cmd_validate(args) -> int:
             print(f"{name:12s} {load_case(name).title}")
         return 0
     res = run_case(args.case, dp=args.dp, backend=args.backend, precision=args.precision,
-                   overrides=_overrides(args.set), out=args.out)
+                   overrides=_overrides(args.set), out=args.out,
+                   params={"boundary": args.boundary} if args.boundary else None)
     print(res.report())
     if res.plot_path:
         print(f"wrote {res.plot_path}")
