@@ -89,6 +89,7 @@ def sweep_blocks(sim, blocks, steps, maxregs=()):
     from numba import cuda
     from sphgraph.backends.compute import cuda_kernels as CK
     keep = CK.FORCE_BLOCK
+    keep_mr = CK.MAXREG
     out = {}
     for b in list(blocks) + [f"maxreg{m}" for m in maxregs]:
         if isinstance(b, str):
@@ -96,6 +97,7 @@ def sweep_blocks(sim, blocks, steps, maxregs=()):
             CK.MAXREG = int(b[6:])
         else:
             CK.FORCE_BLOCK = int(b)
+            CK.MAXREG = keep_mr
         sim.step()
         cuda.synchronize()
         t0 = time.perf_counter()
@@ -104,7 +106,7 @@ def sweep_blocks(sim, blocks, steps, maxregs=()):
         cuda.synchronize()
         out[str(b)] = steps / (time.perf_counter() - t0)
     CK.FORCE_BLOCK = keep
-    CK.MAXREG = 0
+    CK.MAXREG = keep_mr
     return out
 
 

@@ -200,3 +200,11 @@ def test_simulator_multirank_matches_cpu(integrator, schedule):
     assert r["ids"]
     assert r["pos"] < 1e-9, r
     assert r["rho"] < 1e-6, r
+
+
+@gpu
+def test_gpu_multirank_matches_cpu():
+    """The same 2 mock ranks on the GPU (float64) against 1 CPU rank."""
+    r = _run(MULTI + "\nprint(json.dumps(multi(2, 'symplectic', 3, 2)))", sim=False, timeout=600)
+    assert r["ids"]
+    assert r["pos"] < 1e-9, r
