@@ -188,3 +188,11 @@ def test_mdbc_noslip_removes_the_dbc_wall_offset_in_poiseuille_flow():
     assert m.metrics["u_l2_err_rel_umax"] < 0.03, m.report()
     assert m.metrics["u_l2_err_rel_umax"] < dbc.metrics["u_l2_err_rel_umax"] / 4
     assert m.metrics["u_l2_err_at_H/dp=10"] < 0.03
+
+
+def test_yeh_petroff_column_force_arrives_coarse():
+    """3D, dp = 0.06 (a few seconds): the force on the column (the [forces] sampler) stays ~0
+    until the surge arrives, then rises within 0.15 s of the measured arrival."""
+    r = run_case("yeh_petroff", dp=0.06, plot=False, params={"t_end": 0.6})
+    assert -0.15 < r.metrics["arrival_time_err_s"] < 0.05, r.report()
+    assert r.metrics["peak_force_N"] > 10.0
