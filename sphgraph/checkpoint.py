@@ -396,8 +396,11 @@ class Keeper:
 
     def save(self, next_out, frames, last_saved) -> str:
         if self.every is not None and self.every[0] == "time":
-            while self.next_time <= self.sim.time + 1e-12:
-                self.next_time += self.every[1]
+            p = self.every[1]   # no loop: a tiny period must not stall (t + p == t)
+            if self.next_time <= self.sim.time + 1e-12:
+                self.next_time = max(self.next_time + p, (math.floor(self.sim.time / p + 1e-9) + 1) * p)
+                if self.next_time <= self.sim.time:
+                    self.next_time = math.inf
         self.last_path = save(self.sim, self.out_dir, next_out=next_out, frames=frames,
                               last_saved=last_saved, next_checkpoint=self.next_time)
         self.last_step = self.sim.step_count

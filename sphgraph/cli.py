@@ -315,7 +315,11 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         return COMMANDS[args.cmd](args)
     except InputError as e:
-        for line in str(e).splitlines() or [type(e).__name__]:
+        lines = str(e).splitlines() or [type(e).__name__]
+        first = (sys.argv[1:] if argv is None else list(argv))[:1]
+        if len(lines) > 1 and first and first[0] in ("run", "bench"):   # run: one line (DESIGN.md §5)
+            lines = [f"{lines[0]} (and {len(lines) - 1} more problem(s): see `sphgraph schedule validate`)"]
+        for line in lines:
             print(f"sphgraph: error: {line}", file=sys.stderr)
         return 2
     except NumericalError as e:

@@ -69,7 +69,10 @@ class Lattice:
 def box_count(box: Box) -> int:
     """Number of lattice points in an inclusive index box (0 if empty)."""
     lo, hi = box
-    return int(np.prod(np.maximum(np.asarray(hi) - np.asarray(lo) + 1, 0), dtype=np.int64))
+    n = 1   # Python ints: a huge box must not wrap around int64 (and pass a particle limit)
+    for a, b in zip(np.asarray(lo).tolist(), np.asarray(hi).tolist()):
+        n *= max(int(b) - int(a) + 1, 0)
+    return n
 
 
 def boxes_count(boxes) -> int:

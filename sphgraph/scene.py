@@ -298,6 +298,9 @@ class Scene:
         dp = c.number("dp", c.require("", d, "dp"), gt=0)
         end_time = c.number("end_time", c.require("", d, "end_time"), gt=0)
         out_dt = c.number("output_interval", d.get("output_interval", end_time / 20), gt=0)
+        if out_dt < end_time * 1e-8:   # else the next output time stops advancing (t + interval == t)
+            raise c.error("output_interval", f"a number >= end_time * 1e-8 = {end_time * 1e-8:.6g} "
+                          "(at most 10^8 frames)", out_dt)
 
         dom = c.table("domain", c.require("", d, "domain"),
                       ("min", "max", "origin", "periodic", "exclude_outside"))
@@ -306,6 +309,10 @@ class Scene:
         if not np.all(dmax > dmin):
             raise c.error("domain.max", f"every coordinate > domain.min {_vlist(dmin)}", dom["max"])
         origin = c.vector("domain.origin", dom.get("origin", _vlist(dmin)), dim)
+        # lattice indices are int64 and exact in float64: at most 2**50 spacings from the origin
+        if max(np.abs(dmax - origin).max(), np.abs(dmin - origin).max()) / dp > 2.0 ** 50:
+            raise c.error("dp", "a spacing giving at most 2**50 lattice points from domain.origin "
+                          "to the domain's corners", dp)
         periodic = dom.get("periodic", [])
         if (not isinstance(periodic, list) or len(set(periodic)) != len(periodic)
                 or not all(a in AXES[:dim] for a in periodic)):

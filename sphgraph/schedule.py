@@ -109,7 +109,7 @@ class Schedule:
             problems.append(f"{source}: order: expected a non-empty list of task names, got {order!r}")
             order = []
         halo = d.get("halo_order", [1, 2])
-        if not isinstance(halo, list) or sorted(halo) != [1, 2] or not all(type(x) is int for x in halo):
+        if not isinstance(halo, list) or not all(type(x) is int for x in halo) or sorted(halo) != [1, 2]:
             problems.append(f"{source}: halo_order: expected [1, 2] or [2, 1], got {halo!r}")
             halo = [1, 2]
         lanes = d.get("lanes", {})
