@@ -372,11 +372,18 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
 
 def _abort_all(sim, e) -> None:
     """An exception on one MPI rank: print it once (this rank) and abort every rank (exit 3)."""
+    import os
     import sys
+    import tempfile
+    import traceback
     c = sim.contexts[0]
+    fd, log = tempfile.mkstemp(prefix=f"sphgraph-error-rank{c.rank}-", suffix=".log")
+    with os.fdopen(fd, "w") as f:
+        traceback.print_exc(file=f)
     print(f"sphgraph: internal error on rank {c.rank} at step {sim.step_count}: {type(e).__name__}: {e}; "
-          "aborting all ranks", file=sys.stderr, flush=True)
+          f"aborting all ranks (traceback in {log})", file=sys.stderr, flush=True)
     sim.comm.abort(3)
+    os._exit(3)   # never reach the CLI's own report: the line above is the one line
 
 
 def _write_balance(writer, sim) -> None:

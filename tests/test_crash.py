@@ -22,6 +22,7 @@ import time
 import warnings
 
 import h5py
+import pytest
 import numpy as np
 
 from sphgraph import checkpoint as ck
@@ -129,3 +130,60 @@ def test_sigkill_anywhere_leaves_readable_output_and_restartable_checkpoints(tmp
         for k in FIELDS:
             assert np.array_equal(a[k], b[k]), (i, k)
     assert time.time() - t0 < 120
+
+
+# ------------------------------------------------------------------------------ faults under MPI
+FAULT_DRIVER = r'''
+import sys
+import numpy as np
+from mpi4py import MPI
+import sphgraph.graph.tasks as T
+from sphgraph.cli import main
+kind, scene, out = sys.argv[1:4]
+rank = MPI.COMM_WORLD.rank
+orig = T.run_integrate
+
+def faulty(ctx, task):
+    orig(ctx, task)
+    if ctx.rank == 1 and ctx.state.step == 3:
+        if kind == "exception":
+            raise RuntimeError("injected fault")
+        ctx.state.particles.vel[0, 0] = np.nan     # numerical: found by the check on rank 1
+
+T.run_integrate = faulty
+sys.exit(main(["run", scene, "--comm", "mpi", "--out", out, "--quiet", "--max-steps", "20"]))
+'''
+
+
+def _mpiexec():
+    import shutil
+    exe = shutil.which("mpiexec") or os.path.join(os.path.dirname(sys.executable), "mpiexec")
+    try:
+        import mpi4py  # noqa: F401
+    except ImportError:
+        return None
+    return exe if os.path.exists(exe) else None
+
+
+@pytest.mark.parametrize("kind,code,text", [("exception", None, "injected fault"),
+                                            ("numerical", 1, "NaN in velocity")])
+def test_fault_on_one_rank_stops_all_ranks(tmp_path, kind, code, text):
+    exe = _mpiexec()
+    if exe is None:
+        pytest.skip("mpi4py / mpiexec not installed")
+    from conftest import example
+    scene = tmp_path / "s.toml"
+    d = __import__("sphgraph").Scene.from_toml(example("dambreak2d.toml")).with_overrides(dp=0.04)
+    scene.write_text(d.text)
+    drv = tmp_path / "drv.py"
+    drv.write_text(FAULT_DRIVER)
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    t0 = time.time()
+    r = subprocess.run([exe, "-n", "3", sys.executable, str(drv), kind, str(scene), str(tmp_path / "o")],
+                       capture_output=True, text=True, env=env, timeout=120)
+    took = time.time() - t0
+    assert r.returncode != 0 if code is None else r.returncode == code, (r.returncode, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if text in ln]
+    assert len(lines) == 1, r.stderr          # printed once, naming the rank and the step
+    assert "rank 1" in lines[0] and ("step 4" in lines[0] or "step 3" in lines[0]), lines[0]
+    assert took < 60, took
