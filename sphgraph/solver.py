@@ -280,6 +280,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
             ck.prune(out_dir, keep=ck.KEEP, after_step=saved.step)
         elif root:
             prepare_out_dir(out_dir, overwrite=overwrite)
+            ck.prune(out_dir, keep=0)   # a new run: an earlier run's checkpoints must not be restarted
             writer = OutputWriter(out_dir, sim.root_attrs(sim.compute.name, sim.comm.name),
                                   sim.dim, sim.precision)
     elif every is not None or walltime is not None:

@@ -241,3 +241,13 @@ def test_memory_guard_refuses_before_allocating(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "fit in memory" in err[0], err
     assert time.perf_counter() - t0 < 5 and not os.path.exists(tmp_path / "o")
+
+
+def test_overwrite_drops_an_earlier_runs_checkpoints(tmp_path):
+    """Found by test_crash: --overwrite kept old checkpoints, and a restart then mixed a stale
+    state with the new output.h5."""
+    sc = small(end_time=0.02)
+    run(sc, out=tmp_path / "o", progress=False, checkpoint_every=20)
+    assert ck.list_checkpoints(tmp_path / "o")
+    run(sc, out=tmp_path / "o", progress=False, overwrite=True, max_steps=5)
+    assert ck.list_checkpoints(tmp_path / "o") == []
