@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from . import geometry as geo
+from . import shapes, stl
 from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, PhysicsConfig, derive
 from .errors import InputError
 from .particles import FIXED, FLUID, MOVING, Particles
@@ -44,8 +45,8 @@ EXTRA_TABLES = ("balance", "probes", "forces", "motion", "damping", "shifting")
 TOP_KEYS = ("format", "name", "dim", "dp", "end_time", "output_interval", "domain",
             "physics", "decomposition", "initial", "limits", "fluid", "boundary") + EXTRA_TABLES
 AXES = ("x", "y", "z")
-FLUID_TYPES = ("box",)
-BOUNDARY_TYPES = ("tank", "box", "wall")
+FLUID_TYPES = ("box",) + shapes.FLUID_SHAPES
+BOUNDARY_TYPES = ("tank", "box", "wall") + shapes.SHAPE_TYPES  # shapes: sphgraph/shapes.py
 BOX_FILLS = ("solid", "surface")
 _ENTRY_KEYS = {
     ("fluid", "box"): ("type", "min", "max"),
@@ -331,17 +332,25 @@ class Scene:
                             lim.get("max_particles", DEFAULT_MAX_PARTICLES), ge=1))
 
         tol = geo.TOL * dp
+        base = Path(source).parent if not source.startswith("<") else Path.cwd()  # STL paths
         fluid = []
         for i, e in enumerate(_entries(c, d, "fluid", required=True)):
             key = f"fluid[{i}]"
-            e = _entry(c, key, e, "fluid", FLUID_TYPES, dim)
+            e = _entry(c, key, e, "fluid", FLUID_TYPES, dim, base)
+            if e["type"] in shapes.SHAPE_TYPES:   # checked against the domain by lattice extent
+                fluid.append(e)
+                continue
             if np.any(e["_min"] < dmin - tol):
                 raise c.error(f"{key}.min", f"a point inside the domain (>= {_vlist(dmin)})", e["min"])
             if np.any(e["_max"] > dmax + tol):
                 raise c.error(f"{key}.max", f"a point inside the domain (<= {_vlist(dmax)})", e["max"])
             fluid.append(_public(e))
-        boundary = [_public(_entry(c, f"boundary[{i}]", e, "boundary", BOUNDARY_TYPES, dim))
-                    for i, e in enumerate(_entries(c, d, "boundary", required=False))]
+        raw = _entries(c, d, "boundary", required=False)
+        boundary = [_public(_entry(c, f"boundary[{i}]", e, "boundary", BOUNDARY_TYPES, dim, base))
+                    for i, e in enumerate(raw)]
+        if any(e["type"] == "stl" and e["path"] != r.get("path")
+               for e, r in zip(fluid + boundary, d["fluid"] + raw)):
+            text = None   # a relative STL path: store the resolved one, loadable from anywhere
         extra = {k: copy.deepcopy(d[k]) for k in EXTRA_TABLES if k in d}
         names = [e["name"] for e in boundary if "name" in e]
         if len(set(names)) != len(names):
@@ -368,19 +377,31 @@ class Scene:
         domain, some fluid points, and the estimated count within the limit."""
         lat = self._lattice_def()
         tol = geo.TOL * self.dp
-        for i, e in enumerate(self.boundary):
-            bb = geo.bounding_box(_boundary_boxes(e, lat, self.dim))
+        entries = [("boundary", i, e) for i, e in enumerate(self.boundary)]
+        entries += [("fluid", i, e) for i, e in enumerate(self.fluid) if e["type"] in shapes.SHAPE_TYPES]
+        for group, i, e in entries:
+            if e["type"] in shapes.SHAPE_TYPES:
+                bb = self._shape(group, i).bounds(lat)
+                if geo.box_count(bb) == 0:
+                    continue
+            else:
+                bb = geo.bounding_box(_boundary_boxes(e, lat, self.dim))
             lo, hi = lat.positions(bb[0][None])[0], lat.positions(bb[1][None])[0]
             if np.any(lo < self.domain_min - tol) or np.any(hi > self.domain_max + tol):
-                raise c.error(f"boundary[{i}]", f"particles inside the domain {_vlist(self.domain_min)}"
+                raise c.error(f"{group}[{i}]", f"particles inside the domain {_vlist(self.domain_min)}"
                               f" - {_vlist(self.domain_max)} (extend [domain])",
                               f"particles spanning {_vlist(np.round(lo, 12))} - {_vlist(np.round(hi, 12))}",
                               literal=True)
-        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid]
-        if geo.boxes_count(fboxes) == 0:
+        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid if e["type"] == "box"]
+        fshape = sum(self._shape("fluid", i).estimate(self.dp) for i, e in enumerate(self.fluid)
+                     if e["type"] in shapes.SHAPE_TYPES)
+        if geo.boxes_count(fboxes) + fshape == 0:
             raise c.error("fluid", f"boxes holding lattice points (spacing dp = {self.dp})", 0)
-        bslabs = [b for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
-        estimate = geo.boxes_count(fboxes) + geo.boxes_count(bslabs)
+        bslabs = [b for e in self.boundary if e["type"] not in shapes.SHAPE_TYPES
+                  for b in _boundary_boxes(e, lat, self.dim)]
+        bshape = sum(self._shape("boundary", i).estimate(self.dp) for i, e in enumerate(self.boundary)
+                     if e["type"] in shapes.SHAPE_TYPES)
+        estimate = geo.boxes_count(fboxes) + geo.boxes_count(bslabs) + fshape + bshape
         self._cache["estimate"] = estimate
         if estimate > self.max_particles:
             raise c.error("limits.max_particles",
@@ -426,22 +447,49 @@ class Scene:
     def _lattice_def(self) -> geo.Lattice:
         return geo.Lattice(self.lattice_origin, self.dp)
 
+    def _shape(self, group: str, i: int):
+        """The :mod:`sphgraph.shapes` object of entry ``group[i]`` (cylinder, slope, stl), cached."""
+        k = ("shape", group, i)
+        if k not in self._cache:
+            self._cache[k] = shapes.make(getattr(self, group)[i], self.dim)
+        return self._cache[k]
+
+    def _shape_points(self, group: str, i: int) -> np.ndarray:
+        """Index vectors of a shape entry's particles, cached."""
+        k = ("points", group, i)
+        if k not in self._cache:
+            try:
+                self._cache[k] = self._shape(group, i).points(self._lattice_def())
+            except stl.MeshError as err:
+                raise _Checker(self.source).error(f"{group}[{i}].path", "a closed triangle mesh",
+                                                  str(err), literal=True) from None
+        return self._cache[k]
+
     def _lattice(self):
         """(boundary index vectors, fluid index vectors), cached: the particle set."""
         if "lattice" in self._cache:
             return self._cache["lattice"]
         lat = self._lattice_def()
-        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid]
-        bslabs = [b for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
+        is_shape = [e["type"] in shapes.SHAPE_TYPES for e in self.fluid + self.boundary]
+        fshapes = [i for i, e in enumerate(self.fluid) if is_shape[i]]
+        bshapes = [i for i, e in enumerate(self.boundary) if is_shape[len(self.fluid) + i]]
+        fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid if e["type"] == "box"]
+        bslabs = [b for e in self.boundary if e["type"] not in shapes.SHAPE_TYPES
+                  for b in _boundary_boxes(e, lat, self.dim)]
         # obstacles are solid bodies: no fluid inside them even when drawn as a surface
         solids = [(lat.nearest(e["min"]), lat.nearest(e["max"]))
                   for e in self.boundary if e["type"] == "box"]
+        sbounds = [self._shape("fluid", i).bounds(lat) for i in fshapes]
+        sbounds += [self._shape("boundary", i).bounds(lat) for i in bshapes]
         try:
-            grid = geo.Grid(*geo.bounding_box(fboxes + bslabs))
+            grid = geo.Grid(*geo.bounding_box(fboxes + bslabs + sbounds))
         except OverflowError:
             raise _Checker(self.source).error(
                 "dp", "a spacing whose lattice over the geometry fits int64 keys", self.dp) from None
         bkeys = grid.union_keys(bslabs)
+        if bshapes:
+            bkeys = np.unique(np.concatenate(
+                [bkeys] + [grid.point_keys(self._shape_points("boundary", i)) for i in bshapes]))
         # the hollow of a surface obstacle is empty (DualSPHysics voids the box before
         # drawing its faces); with open_bottom this also clears the floor under it
         hollows = [geo.hollow_box(lat.nearest(e["min"]), lat.nearest(e["max"]), e["layers"],
@@ -454,12 +502,17 @@ class Scene:
                 keep &= ~geo.in_box(bidx, box)
             bkeys = bkeys[keep]
         fkeys = grid.union_keys(fboxes)          # overlapping fluid boxes merge
+        if fshapes:
+            fkeys = np.unique(np.concatenate(
+                [fkeys] + [grid.point_keys(self._shape_points("fluid", i)) for i in fshapes]))
         fkeys = fkeys[~geo.contains(bkeys, fkeys)]  # fluid on a boundary point is dropped
         fidx = grid.indices(fkeys)
-        if solids:
+        if solids or bshapes:   # nor inside a body (or under a slope)
             inside = np.zeros(len(fidx), bool)
             for box in solids:
                 inside |= geo.in_box(fidx, box)
+            for i in bshapes:
+                inside |= self._shape("boundary", i).solid(lat, fidx)
             fidx = fidx[~inside]
         if len(fidx) == 0:
             raise _Checker(self.source).error(
@@ -480,12 +533,17 @@ class Scene:
         if len(bidx):
             grid = geo.Grid(bidx.min(axis=0), bidx.max(axis=0))
             bkeys = grid.point_keys(bidx)
-            for e in self.boundary:
+            hi_w = grid.lo + np.asarray(grid.shape) - 1
+            for k, e in enumerate(self.boundary):
                 if "name" not in e:
                     continue
+                if e["type"] in shapes.SHAPE_TYPES:
+                    pts = self._shape_points("boundary", k)
+                    parts = [pts[np.all((pts >= grid.lo) & (pts <= hi_w), axis=1)]]
+                else:
+                    parts = _boundary_points(e, lat, self.dim, grid)
                 ekeys = np.unique(np.concatenate(
-                    [grid.point_keys(i) for i in _boundary_points(e, lat, self.dim, grid)] or
-                    [np.empty(0, np.int64)]))
+                    [grid.point_keys(i) for i in parts] or [np.empty(0, np.int64)]))
                 out[e["name"]] = geo.contains(ekeys, bkeys)
         self._cache["masks"] = out
         return out
@@ -614,17 +672,20 @@ def _entries(c: _Checker, d, name, required) -> list:
     return v
 
 
-def _entry(c: _Checker, key, e, group, types, dim) -> dict:
-    """Validate one geometry entry; returns it normalised (+ '_min'/'_max' arrays)."""
+def _entry(c: _Checker, key, e, group, types, dim, base=Path(".")) -> dict:
+    """Validate one geometry entry; returns it normalised (+ '_min'/'_max' arrays for boxes)."""
     t = c.choice(f"{key}.type", c.require(key, e, "type"), types)
+    if t in shapes.SHAPE_TYPES:   # cylinder, slope, stl (relative paths from `base`)
+        out = shapes.validate(c, key, e, group, dim, base)
+        if "name" in e:
+            _name(c, key, e)
+        return out
     c.table(key, e, _ENTRY_KEYS[(group, t)])
     lo = c.vector(f"{key}.min", c.require(key, e, "min"), dim)
     hi = c.vector(f"{key}.max", c.require(key, e, "max"), dim)
     out = {"type": t, "min": _vlist(lo), "max": _vlist(hi), "_min": lo, "_max": hi}
     if "name" in e:
-        if not isinstance(e["name"], str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", e["name"]):
-            raise c.error(f"{key}.name", "a name of letters, digits, '.', '_' or '-'", e["name"])
-        out["name"] = e["name"]
+        out["name"] = _name(c, key, e)
     if t == "wall":
         flat = np.flatnonzero(hi == lo)
         if len(flat) != 1 or np.any(np.delete(hi, flat) <= np.delete(lo, flat)):
@@ -646,6 +707,12 @@ def _entry(c: _Checker, key, e, group, types, dim) -> dict:
     if group == "boundary" and not (t == "box" and out["fill"] == "solid"):
         out["layers"] = c.integer(f"{key}.layers", e.get("layers", 1), ge=1)
     return out
+
+
+def _name(c: _Checker, key, e) -> str:
+    if not isinstance(e["name"], str) or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", e["name"]):
+        raise c.error(f"{key}.name", "a name of letters, digits, '.', '_' or '-'", e["name"])
+    return e["name"]
 
 
 def _public(e: dict) -> dict:

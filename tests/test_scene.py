@@ -314,7 +314,7 @@ BAD = [
     ("fluid unknown key", _set("fluid.0.fill", "solid"), "fluid[0].fill", "one of: type, min, max"),
     ("fluid missing", _set("fluid", None), "fluid", "at least one [[fluid]]"),
     ("fluid not array", _set("fluid", {"type": "box"}), "fluid", "an array of tables"),
-    ("boundary type", _set("boundary.0.type", "cylinder"), "boundary[0].type", '"tank", "box", "wall"'),
+    ("boundary type", _set("boundary.0.type", "sphere"), "boundary[0].type", '"tank", "box", "wall"'),
     ("tank layers 0", _set("boundary.0.layers", 0), "boundary[0].layers", "an integer >= 1"),
     ("tank layers float", _set("boundary.0.layers", 1.5), "boundary[0].layers", "an integer"),
     ("tank open_top int", _set("boundary.0.open_top", 1), "boundary[0].open_top", "true or false"),

@@ -18,7 +18,9 @@ viscous terms see; DBC's default is v_b = 0 on the particle itself, i.e. no-slip
 outside the wall.
 
 Normals are implied by the geometry: ghosts come from the scene's boundary entries (tank
-inner faces, wall planes, obstacle boxes), computed automatically, nearest entry first.
+inner faces, wall planes, obstacle boxes; cylinders, slopes and STL meshes through
+`sphgraph.shapes`, whose `ghosts` mirror across the analytic surface or the nearest
+triangle), computed automatically, nearest entry first.
 """
 from __future__ import annotations
 
@@ -28,10 +30,14 @@ import numpy as np
 def interface_boxes(scene):
     """[(kind, lo, hi, data)] of the interfaces of each boundary entry, dp/2 on the fluid side."""
     dp = scene.dp
+    from ..shapes import SHAPE_TYPES, make
     out = []
     for e in scene.boundary:
-        lo, hi = np.array(e["min"], float), np.array(e["max"], float)
         t = e["type"]
+        if t in SHAPE_TYPES:   # closed bodies: interface on the surface; slopes: dp/2 above
+            out.append(("shape", None, None, (make(e, scene.dim), dp)))
+            continue
+        lo, hi = np.array(e["min"], float), np.array(e["max"], float)
         if t == "tank":
             ilo, ihi = lo + 0.5 * dp, hi - 0.5 * dp
             if e.get("open_top", True):
@@ -55,7 +61,12 @@ def ghost_positions(pos: np.ndarray, boxes) -> np.ndarray:
             c = np.clip(pos, lo, hi)
             g = 2.0 * c - pos
             d = np.sqrt(((c - pos) ** 2).sum(1))
-            # distance to the entry's walls (for picking the entry): outside the interior only
+            # distance to the entry's walls (for picking the entry): outside the interior only;
+            # a particle inside it (an obstacle in the tank) is not this tank's
+            d[d == 0.0] = np.inf
+        elif kind == "shape":
+            shape, dp = data
+            g, d = shape.ghosts(pos, dp)
         elif kind == "plane":
             axis, x0, sign = data
             g = pos.copy()
