@@ -176,6 +176,9 @@ class Balancer:
         st = ctx.state
         t0 = time.perf_counter()
         dom = ctx.domain
+        sync = getattr(ctx.compute, "sync_host", None)   # device-resident rows: current host positions
+        if sync is not None:
+            sync(st)
         x = st.particles.pos[st.particles.kind == FLUID, self.axis]
         n_own = len(x)
         n_halo = sum(int(np.count_nonzero(h.kind == FLUID)) for h in st.halos.values() if h is not None)

@@ -173,33 +173,52 @@ MULTI = SCENES + textwrap.dedent('''
     import numpy as np
     from sphgraph.solver import Simulation
 
-    def multi(dim, integrator, steps, ranks, schedule="production", precision="float64"):
+    def multi(dim, integrator, steps, ranks, schedule="production", precision="float64", shift=0):
         sc = scene(dim, integrator)
         ref = Simulation(sc, backend="numba-cpu", precision="float64")
         gpu = Simulation(sc, backend="numba-cuda", precision=precision, comm="mock", ranks=ranks,
                          schedule=schedule)
+        # move the inner cuts by `shift` spacings: the rows between the old and the new cut
+        # change rank in the first step (removed and appended on the device)
+        for c in gpu.contexts:
+            c.domain.cuts = c.domain.cuts.copy()
+            c.domain.cuts[1:-1] += shift * sc.dp
+        kinds = lambda: [dict(c.state.extra.get("bytes_by_kind", {})) for c in gpu.contexts]
+        before = kinds()
         for _ in range(steps):
             ref.step()
             gpu.step()
+        after = kinds()
         a, g = ref.frame_arrays(), gpu.frame_arrays()
         ia, ig = np.argsort(a["id"]), np.argsort(g["id"])
         ext = float(np.max(sc.domain_max - sc.domain_min))
+        delta = lambda key: [x.get(key, 0) - y.get(key, 0) for x, y in zip(after, before)]
         return {"ids": bool(np.array_equal(a["id"][ia], g["id"][ig])),
                 "pos": float(np.abs(a["position"][ia] - g["position"][ig]).max() / ext),
-                "rho": float(np.abs(a["density"][ia] - g["density"][ig]).max())}
+                "rho": float(np.abs(a["density"][ia] - g["density"][ig]).max()),
+                "displaced_out": delta("d2h:displaced"), "displaced_in": delta("h2d:displaced"),
+                "uploads": delta("h2d:upload"), "syncs": delta("d2h:sync_host")}
 ''')
 
 
-@pytest.mark.parametrize("integrator,schedule", [("verlet", "production"), ("symplectic", "bulk-synchronous")])
-def test_simulator_multirank_matches_cpu(integrator, schedule):
+@pytest.mark.parametrize("integrator,schedule,shift", [("verlet", "production", 2),
+                                                        ("symplectic", "bulk-synchronous", -2)])
+def test_simulator_multirank_matches_cpu(integrator, schedule, shift):
     """2 mock ranks on the CUDA kernels (edges sliced on the device, halo forces, partial
-    buffers, reduce, kind-split interior launches) against 1 rank on the CPU, float64, 2D.
-    (Before the edges and displaced rows were read from the device, the ranks sent stale
-    host rows and re-uploaded them every step: 8e-7 of the domain, 1e-2 in density.)"""
-    r = _run(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 3, 2, {schedule!r})))", sim=True, timeout=600)
+    buffers, reduce, kind-split interior launches, rows changing rank) against 1 rank on
+    the CPU, float64, 2D. (Before the edges and displaced rows were read from the device,
+    the ranks sent stale host rows and re-uploaded them every step: 8e-7 of the domain,
+    1e-2 in density.) The cut is moved by 2 spacings (up, then down), so rows change rank
+    in the first step: they must be removed and appended on the device, with no whole
+    re-upload and no whole download."""
+    r = _run(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 3, 2, {schedule!r}, shift={shift})))",
+             sim=True, timeout=600)
     assert r["ids"]
     assert r["pos"] < 1e-9, r
     assert r["rho"] < 1e-6, r
+    giver, taker = (1, 0) if shift > 0 else (0, 1)
+    assert r["displaced_out"][giver] > 0 and r["displaced_in"][taker] > 0, r
+    assert r["uploads"] == [0, 0] and r["syncs"] == [0, 0], r
 
 
 @gpu

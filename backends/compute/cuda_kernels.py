@@ -695,6 +695,32 @@ def k_keys_hist2(px, py, pz, kind, n, dim, ox, oy, oz, inv_size, nx, ny, nz, sx,
     cuda.atomic.add(counts, key, 1)
 
 
+# ----------------------------------------------------------------- rows between ranks
+# Rows leaving a slab are found and removed on the device (only they cross the bus):
+# k_mig_flags marks the rows that stay and appends the leaving ones to a short list
+# (row * 2 + side, any order: the host sorts it); the kept rows are compacted in their
+# old order (an exclusive scan of the flags, then k_compact_perm and the usual gather).
+
+def k_mig_flags(pa, n, lo, hi, keep, out, cap, count):
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    x = pa[i]
+    if x < lo or x >= hi:
+        keep[i] = 0
+        slot = cuda.atomic.add(count, 0, 1)
+        if slot < cap:
+            out[slot] = 2 * i + (1 if x >= hi else 0)
+    else:
+        keep[i] = 1
+
+
+def k_compact_perm(keep, pos, n, perm):
+    i = cuda.grid(1)
+    if i < n and keep[i] != 0:
+        perm[pos[i]] = i
+
+
 def k_gather4(src, perm, n, dst):
     """Records of 4 (flat arrays of 4 n)."""
     i = cuda.grid(1)
@@ -1024,7 +1050,7 @@ def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_si
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
             "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
             "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
-            "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2")
+            "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2", "k_mig_flags", "k_compact_perm")
 _FAST = {"k_forces", "k_count_pairs", "k_count_pairs2"}
 _BUILT: dict = {}
 

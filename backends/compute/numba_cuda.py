@@ -43,6 +43,7 @@ class DeviceState:
         self.arrays = {}                            # name -> device array (owned)
         self.views = {}                             # name -> view into an owned array (see make_views)
         self.nf = 0                                 # fluid rows: rows 0..nf-1 after each sort
+        self.cap = max(n, 1)                        # rows allocated (>= n: room for arriving rows)
         self.grid = None                            # dict: origin(perm), dims, axes, inv, reach, ncells
         self.box = None                             # host bounding box [min3, max3] of the rows
         self.parts = {}
@@ -75,10 +76,10 @@ class DeviceState:
         v4, p4 = a["vel4"], a["pos4"]
         n = p4.shape[0] // 4
         for k, ax in enumerate(_VEC):
-            v["v" + ax] = v4[k::4]
-            v["r" + ax] = p4[k::4]
-        v["rho"] = v4[3::4]
-        v["press"] = p4[3::4]
+            v["v" + ax] = _every4(v4, k)
+            v["r" + ax] = _every4(p4, k)
+        v["rho"] = _every4(v4, 3)
+        v["press"] = _every4(p4, 3)
         v["visc"] = a["raw"]
         v["perm"] = a["raw"].view(np.int32)[:n]
         v["keys"] = a["ax"].view(np.int32)[:n]
@@ -99,6 +100,16 @@ class DeviceState:
                 seen.add(id(a))
                 total += a.nbytes
         return total
+
+
+def _every4(a, k):
+    """a[k::4] of a flat device array. Built from its descriptor: numba-cuda's own
+    strided slicing walks every element in Python (7 s for 1 M records)."""
+    if CK.SIMULATOR:
+        return a[k::4]
+    it = a.dtype.itemsize
+    return type(a)(shape=((a.shape[0] - k + 3) // 4,), strides=(4 * it,), dtype=a.dtype,
+                   gpu_data=a.gpu_data.view(k * it))
 
 
 def _count(state, direction, kind, nbytes):
@@ -174,15 +185,22 @@ class NumbaCUDA(ComputeBackend):
         ref = old.ref if old is not None else (p.pos.min(axis=0) if p.n else np.zeros(dim))
         dv = DeviceState(p.n, dim, dt, ref)
         dv.nf = int(np.count_nonzero(p.kind == 0)) if p.n else 0
+        # row capacity: with several ranks, room for rows that arrive (appended on the
+        # device by add_displaced; a rank that outgrows it is uploaded again, larger)
         n = max(p.n, 1)
+        if state.nranks > 1:
+            n += max(p.n // 16, 1024)
+        dv.cap = n
         up = 0
 
         def put(name, host, dtype):
             nonlocal up
             h = np.ascontiguousarray(host, dtype=dtype)
-            if h.shape[0] == 0:
-                h = np.zeros(1, dtype)
-            dv.arrays[name] = cuda.to_device(h)
+            m = h.shape[0]
+            per = 4 if name == "vel4" else 1
+            dv.arrays[name] = d = cuda.device_array(per * n, dtype)
+            if m:
+                d[:m].copy_to_device(h)
             up += h.nbytes
 
         for d in range(3):
@@ -193,14 +211,14 @@ class NumbaCUDA(ComputeBackend):
             else:   # 2D: one-element dummies
                 for pre in ("p", "vm"):
                     dv.arrays[pre + ax] = cuda.device_array(1, np.float64 if pre == "p" else dt)
-        v4 = np.zeros((n, 4), dt)       # (vx, vy, vz, rho) records: velocity and density live here
+        v4 = np.zeros((p.n, 4), dt)     # (vx, vy, vz, rho) records: velocity and density live here
         if p.n:
             v4[:, :dim] = p.vel
             v4[:, 3] = p.rho
         put("vel4", v4.reshape(-1), dt)
         put("rhom", p.rho_m1, dt)
         put("kind", p.kind, np.int8)
-        put("id", p.id, np.int64 if p.n and int(p.id.max()) >= 2 ** 31 else np.int32)
+        put("id", p.id, np.int64 if p.n and int(p.id.max()) >= 2 ** 31 - 1 else np.int32)
         # work arrays (not uploaded)
         dv.arrays["pos4"] = cuda.device_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
         for ax in _VEC[:dim]:
@@ -237,7 +255,7 @@ class NumbaCUDA(ComputeBackend):
 
         def get(name):
             nonlocal down
-            a = dv.arrays[name].copy_to_host()[:n]
+            a = dv.arrays[name][:n].copy_to_host()
             down += a.nbytes
             return a
 
@@ -247,7 +265,7 @@ class NumbaCUDA(ComputeBackend):
             ax = _VEC[d]
             pos[:, d] = get("p" + ax)
             vm[:, d] = get("vm" + ax)
-        v4 = dv.arrays["vel4"].copy_to_host().reshape(-1, 4)[:n]
+        v4 = dv.arrays["vel4"][:4 * n].copy_to_host().reshape(-1, 4)
         down += v4.nbytes
         p.pos = pos.astype(p.pos.dtype, copy=False)
         p.vel = np.ascontiguousarray(v4[:, :dim]).astype(p.vel.dtype, copy=False)
@@ -270,16 +288,148 @@ class NumbaCUDA(ComputeBackend):
     def take_displaced(self, state, domain) -> dict:
         """Rows that left the slab (as Slabs.take_displaced). The check's bounding box
         says whether any row is outside [lo, hi) along the split axis: if none is, nothing
-        crosses the bus and the device rows stay as they are (the host copy may be stale:
-        `prepare` re-uploads only when the host row set changed)."""
+        crosses the bus. Otherwise the leaving rows are found, copied out and removed on
+        the device (`_remove_rows`): only they cross the bus."""
         dv = state.extra.get("dev")
         if dv is not None and dv.n and dv.box is not None and _plain_slabs(domain):
             a = domain.axis
             if dv.box[0, a] >= domain.lo and dv.box[1, a] < domain.hi:
                 empty = state.particles.take(np.zeros(0, np.int64))
                 return {-1: empty, 1: empty}
+            out = self._remove_rows(state, dv, domain)
+            if out is not None:
+                return out
         self.sync_host(state)
         return domain.take_displaced(state)
+
+    def _remove_rows(self, state, dv, domain):
+        """{-1: rows below lo, +1: rows at or above hi} as host Particles, removed from
+        the device rows (kept rows compacted in their order); None when more rows leave
+        than the list holds (the caller then goes through the host)."""
+        from sphgraph.particles import Particles
+        k = self._k(state)
+        n, dim, A = dv.n, dv.dim, dv.arrays
+        lim = max(1024, n // 32)
+        if "mig_out" not in A or A["mig_out"].shape[0] < lim:
+            A["mig_out"] = cuda.device_array(lim, np.int32)
+            A["mig_cnt"] = cuda.device_array(1, np.int32)
+        lim = A["mig_out"].shape[0]
+        keep = A["ax"].view(np.int32)[:n]          # accelerations are dead until the forces
+        pos = A["ay"].view(np.int32)[:n]
+        A["mig_cnt"].copy_to_device(np.zeros(1, np.int32))
+        b = CK.blocks(n)
+        k.k_mig_flags[b, CK.BLOCK](A["p" + _VEC[domain.axis]], n, float(domain.lo), float(domain.hi),
+                                   keep, A["mig_out"], lim, A["mig_cnt"])
+        m = int(A["mig_cnt"].copy_to_host()[0])
+        _count(state, "d2h_bytes", "displaced", 4)
+        if m > lim:
+            return None
+        code = np.sort(A["mig_out"][:m].copy_to_host()) if m else np.zeros(0, np.int32)
+        rows = {-1: code[code % 2 == 0] // 2, 1: code[code % 2 == 1] // 2}
+        out = {}
+        for side, r in rows.items():
+            out[side] = self._rows_to_host(state, dv, k, r.astype(np.int32))
+        if m:
+            self._scan(dv, k, keep, pos, n)
+            k.k_compact_perm[b, CK.BLOCK](keep, pos, n, dv.perm)
+            dv.n = n - m
+            dv.nf -= sum(int(np.count_nonzero(o.kind == 0)) for o in out.values())
+            self._permute(state, dv, k)
+            self._host_rows_changed(state, dv)
+        return out
+
+    def _rows_to_host(self, state, dv, k, rows):
+        """Device rows `rows` (sorted host index array) as host Particles."""
+        from sphgraph.particles import Particles
+        p = state.particles
+        m, dim, A = len(rows), dv.dim, dv.arrays
+        if m == 0:
+            return p.take(np.zeros(0, np.int64))
+        idx = cuda.to_device(rows)
+        b = CK.blocks(m)
+        down = 0
+
+        def get(name):
+            nonlocal down
+            src = A[name]
+            dst = cuda.device_array(m, src.dtype)
+            k.k_gather[b, CK.BLOCK](src, idx, m, dst)
+            h = dst.copy_to_host()
+            down += h.nbytes
+            return h
+
+        pos = np.stack([get("p" + _VEC[d]) for d in range(dim)], axis=1)
+        vm = np.stack([get("vm" + _VEC[d]) for d in range(dim)], axis=1)
+        v4d = cuda.device_array(4 * m, dv.dtype)
+        k.k_gather4[b, CK.BLOCK](A["vel4"], idx, m, v4d)
+        v4 = v4d.copy_to_host().reshape(m, 4)
+        down += v4.nbytes
+        _count(state, "h2d_bytes", "displaced", rows.nbytes)
+        r = Particles(id=get("id").astype(np.int64), kind=get("kind"), pos=pos.astype(p.pos.dtype, copy=False),
+                      vel=np.ascontiguousarray(v4[:, :dim]).astype(p.vel.dtype, copy=False),
+                      rho=np.ascontiguousarray(v4[:, 3]).astype(p.rho.dtype, copy=False),
+                      vel_m1=vm.astype(p.vel_m1.dtype, copy=False),
+                      rho_m1=get("rhom").astype(p.rho_m1.dtype, copy=False))
+        _count(state, "d2h_bytes", "displaced", down)
+        return r
+
+    def _host_rows_changed(self, state, dv):
+        """The host rows no longer match the device's in number: a stale placeholder of
+        dv.n rows (np.empty: nothing is touched) that `sync_host` fills when asked."""
+        from sphgraph.particles import Particles
+        p, n, dim = state.particles, dv.n, dv.dim
+        state.particles = q = Particles(
+            id=np.empty(n, np.int64), kind=np.empty(n, np.int8), pos=np.empty((n, dim), p.pos.dtype),
+            vel=np.empty((n, dim), p.vel.dtype), rho=np.empty(n, p.rho.dtype),
+            vel_m1=np.empty((n, dim), p.vel_m1.dtype), rho_m1=np.empty(n, p.rho_m1.dtype))
+        dv.__dict__["host_obj"] = q
+        dv.host_stale = True
+
+    def add_displaced(self, state, domain, rows) -> None:
+        """Rows that came from the neighbours, appended to the device rows (only they
+        cross the bus; the next build_cells sorts them in). A rank without room, or
+        whose host rows are current anyway, goes through the host and `prepare`."""
+        rows = [r for r in rows if r is not None and r.n]
+        dv = state.extra.get("dev")
+        if not rows:
+            return
+        m = sum(r.n for r in rows)
+        # through the host when the host rows are the truth (take_displaced went through
+        # the host), there is no room, or an id needs more than the device's int32
+        if (dv is None or dv.__dict__.get("host_obj") is not state.particles or dv.n + m > dv.cap or
+                (dv.arrays["id"].dtype == np.int32 and max(int(r.id.max()) for r in rows) >= 2 ** 31 - 1)):
+            self.sync_host(state)
+            domain.add_rows(state, rows)
+            self.prepare(state)
+            return
+        from sphgraph.particles import Particles
+        r = Particles.concat(rows)
+        n, dim, A = dv.n, dv.dim, dv.arrays
+        up = 0
+
+        def put(name, host, lo=n, per=1):
+            nonlocal up
+            h = np.ascontiguousarray(host, dtype=A[name].dtype)
+            A[name][per * lo:per * lo + h.shape[0]].copy_to_device(h)
+            up += h.nbytes
+
+        for d in range(dim):
+            put("p" + _VEC[d], r.pos[:, d])
+            put("vm" + _VEC[d], r.vel_m1[:, d])
+        v4 = np.zeros((m, 4), dv.dtype)
+        v4[:, :dim] = r.vel
+        v4[:, 3] = r.rho
+        put("vel4", v4.reshape(-1), per=4)
+        put("rhom", r.rho_m1)
+        put("kind", r.kind)
+        put("id", r.id)
+        dv.n = n + m
+        dv.nf += int(np.count_nonzero(r.kind == 0))
+        if dv.box is not None:      # the next grid must hold the new rows
+            dv.box[0, :dim] = np.minimum(dv.box[0, :dim], r.pos.min(axis=0))
+            dv.box[1, :dim] = np.maximum(dv.box[1, :dim], r.pos.max(axis=0))
+        _count(state, "h2d_bytes", "displaced", up)
+        self._host_rows_changed(state, dv)
 
     def edge(self, state, domain, direction):
         """Rows within `reach` of the neighbour's slab, as Slabs.edge, read from the device:

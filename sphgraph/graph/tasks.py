@@ -14,6 +14,11 @@ Data names (what tasks read, write or accumulate):
 time, damping zones and periodic wrapping -- it reads dt and writes particles, so
 the next stage's edges and cells see the moved bodies.
 
+Particle shifting (sphgraph.shifting, only when the scene asks) adds no task: each
+force task also sums its source set's shifting terms (partial sums, part of the
+stage's force accumulation) and `integrate`, which reads the complete forces, turns
+them into displacements.
+
 The canonical order below is the step as a sequential program; dependencies
 come from it and the declarations (`build.rank_graph`), schedules reorder it.
 """
@@ -148,8 +153,17 @@ def run_send_displaced(ctx, task):
 
 def run_recv_displaced(ctx, task):
     rows = [ctx.comm.recv(ctx.rank + m.peer, m.tag) for m in task.recvs]
+    add = getattr(ctx.compute, "add_displaced", None)   # device backends: appended on the device
+    if add is not None and _plain_domain(ctx.domain):
+        add(ctx.state, ctx.domain, rows)
+        return
     ctx.domain.add_rows(ctx.state, rows)
     ctx.compute.prepare(ctx.state)
+
+
+def _plain_domain(domain) -> bool:
+    from sphgraph.domain import Slabs
+    return type(domain).add_rows is Slabs.add_rows
 
 
 def run_build_cells(ctx, task):
@@ -172,8 +186,8 @@ def run_recv_halo(ctx, task):
 def run_forces(ctx, task):
     ctx.compute.forces(ctx.state, task.meta["part"])
     features = getattr(ctx, "features", None)
-    if features is not None and task.meta["part"] == "interior":
-        features.after_interior(ctx)   # periodic images: own rows, so part of the interior task
+    if features is not None:   # periodic images (own rows: interior task), shifting sums
+        features.after_forces(ctx, task.meta["part"], task.stage)
 
 
 def run_dt_local(ctx, task):
@@ -187,7 +201,12 @@ def run_dt_allreduce(ctx, task):
 
 def run_integrate(ctx, task):
     ctx.compute.reduce_forces(ctx.state, task.stage)
+    features = getattr(ctx, "features", None)
+    if features is not None:   # particle shifting: displacements from the velocities before the update
+        features.before_integrate(ctx, task.stage)
     ctx.compute.integrate(ctx.state, task.stage, ctx.integrator, ctx.euler)
+    if features is not None:
+        features.after_integrate(ctx, task.stage)
 
 
 def run_motion(ctx, task):
