@@ -13,7 +13,7 @@ import sys
 import tempfile
 import traceback
 
-from .errors import InputError, NumericalError, SphgraphError
+from .errors import CommError, InputError, NumericalError, SphgraphError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -33,6 +33,14 @@ def _run_flags(p):
     p.add_argument("--ranks", type=int, default=1, help="ranks for --comm mock")
     p.add_argument("--schedule", default="production", help="schedule name or TOML file")
     p.add_argument("--rank-speed", help="mock MPI: comma-separated relative rank speeds, e.g. 1,2,1,0.5")
+    p.add_argument("--duplicate", metavar="P|N,N..", help="mock MPI: deliver messages twice (probability "
+                   "per message, e.g. 0.01, or message numbers, e.g. 5,17); detected and reported")
+    p.add_argument("--loss", metavar="P|N,N..", help="mock MPI: drop messages (as --duplicate); detected "
+                   "and reported")
+    p.add_argument("--seed", type=int, help="mock MPI: random seed of --duplicate/--loss (and delays)")
+    p.add_argument("--watchdog", type=float, metavar="SECONDS",
+                   help="stop every rank when one waits longer than SECONDS in a receive or collective "
+                        "(MPI: default 120, 0 = off; mock: virtual seconds, off by default)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -139,11 +147,28 @@ def _rank_speed(text):
         raise InputError(f"--rank-speed: expected comma-separated numbers, got {text!r}") from None
 
 
+def _faults(flag, text):
+    """--duplicate/--loss: '0.01' (a probability) or '5,17' (message numbers)."""
+    try:
+        if any(c in text for c in ".eE"):
+            return float(text)
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise InputError(f"--{flag}: expected a probability (e.g. 0.01) or comma-separated message "
+                         f"numbers (e.g. 5,17), got {text!r}") from None
+
+
 def _comm_options(args):
     opts = {}
     rs = _rank_speed(getattr(args, "rank_speed", None))
     if rs is not None:
         opts["rank_speed"] = rs
+    for flag in ("duplicate", "loss"):
+        if getattr(args, flag, None) is not None:
+            opts[flag] = _faults(flag, getattr(args, flag))
+    for flag in ("seed", "watchdog"):
+        if getattr(args, flag, None) is not None:
+            opts[flag] = getattr(args, flag)
     return opts
 
 
@@ -326,6 +351,9 @@ def main(argv=None) -> int:
         if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
             print(f"sphgraph: numerical failure: {e}", file=sys.stderr)
         return 1
+    except CommError as e:   # one line: which ranks, task or tag, step
+        print(f"sphgraph: communication error: {e}", file=sys.stderr)
+        return e.exit_code
     except SphgraphError as e:
         return _internal(e)
     except KeyboardInterrupt:

@@ -2,6 +2,7 @@
 
 InputError -> 2 (bad input or usage: one line naming file, key and expected form)
 NumericalError -> 1 (blow-up or violated invariant: step, cause, particle id)
+CommError -> 3 (a message duplicated or lost, or a wait past the watchdog: one line)
 anything else -> 3 (internal error: short message, traceback to a log file)
 """
 
@@ -30,5 +31,12 @@ class NumericalError(SphgraphError):
 
 class DeadlockError(SphgraphError):
     """Every simulated rank waits; the message says who waits on what."""
+
+    exit_code = 3
+
+
+class CommError(SphgraphError):
+    """Ranks cannot go on talking: a message arrived twice or never, or a rank waited past
+    the watchdog limit. The message is one line naming the ranks, the task (or tag) and the step."""
 
     exit_code = 3

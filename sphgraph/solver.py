@@ -16,7 +16,7 @@ from . import __version__
 from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
-from .errors import InputError, NumericalError, SphgraphError
+from .errors import CommError, InputError, NumericalError, SphgraphError
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -340,6 +340,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
             keeper.save(next_out, frames, last_saved)   # the end state (before the end frame): extendable
         if stopped is None and write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
             save_frame()
+        sim.comm.finish()   # a message sent but never received (a duplicate in the last step): reported
     except NumericalError:
         keeper.uninstall()
         prog.close()
@@ -351,7 +352,8 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
         raise
     except Exception as e:
         keeper.uninstall()
-        if not isinstance(e, SphgraphError) and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
+        if (not isinstance(e, SphgraphError) or isinstance(e, CommError)) \
+                and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
             _abort_all(sim, e)
         raise
     keeper.uninstall()
@@ -378,6 +380,10 @@ def _abort_all(sim, e) -> None:
     import tempfile
     import traceback
     c = sim.contexts[0]
+    if isinstance(e, CommError):   # a message fault: its one line names ranks, task and step
+        print(f"sphgraph: communication error: {e}; aborting all ranks", file=sys.stderr, flush=True)
+        sim.comm.abort(e.exit_code)
+        os._exit(e.exit_code)
     fd, log = tempfile.mkstemp(prefix=f"sphgraph-error-rank{c.rank}-", suffix=".log")
     with os.fdopen(fd, "w") as f:
         traceback.print_exc(file=f)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import time
 
+from sphgraph.errors import CommError
+
 
 class CommBackend:
     """Base class. Subclasses register with `@register("comm", NAME)`."""
@@ -51,5 +53,50 @@ class CommBackend:
     def abort(self, code: int) -> None:
         pass
 
+    def finish(self) -> None:
+        """End of a run (every rank): report a message sent but never received (CommError)."""
+
     def clock(self) -> float:
         return time.perf_counter()
+
+
+def where(task: str | None, step: int | None) -> str:
+    """' in TASK at step N' (the parts that are known)."""
+    return (f" in {task}" if task else "") + (f" at step {step}" if step is not None else "")
+
+
+class SeqCheck:
+    """One rank's message sequence numbers: sender side per (dest, tag), receiver side per
+    (source, tag). MPI keeps the messages of one (source, tag) in order (non-overtaking), so
+    the receiver must see 1, 2, 3, ...: a number seen before is a duplicate, a jump a loss."""
+
+    def __init__(self, rank: int):
+        self.rank = rank
+        self.sent: dict = {}      # (dest, tag) -> number of the last message sent
+        self.expect: dict = {}    # (source, tag) -> number of the next message to receive
+
+    def next_send(self, dest: int, tag: int) -> int:
+        n = self.sent.get((dest, tag), 0) + 1
+        self.sent[(dest, tag)] = n
+        return n
+
+    def accept(self, source: int, tag: int, seq: int, task=None, step=None) -> None:
+        """Check message `seq` from `source`; raise CommError on a duplicate or a gap."""
+        want = self.expect.get((source, tag), 1)
+        if seq == want:
+            self.expect[(source, tag)] = want + 1
+            return
+        if seq < want:
+            raise CommError(f"message duplicated: rank {self.rank} received message #{seq} from rank "
+                            f"{source} (tag {tag}) a second time{where(task, step)}")
+        missing = f"#{want}" if seq == want + 1 else f"#{want}-#{seq - 1}"
+        raise CommError(f"message lost: rank {self.rank} received message #{seq} from rank {source} "
+                        f"(tag {tag}){where(task, step)} but never {missing}")
+
+    def duplicate(self, source: int, tag: int, seq: int) -> bool:
+        """Whether a message still queued for this rank repeats one already received."""
+        return seq < self.expect.get((source, tag), 1)
+
+    def outstanding(self, source: int, tag: int, sender: "SeqCheck", queued: int) -> int:
+        """Messages `sender` numbered for this rank beyond those received and `queued`: lost."""
+        return sender.sent.get((self.rank, tag), 0) - (self.expect.get((source, tag), 1) - 1) - queued

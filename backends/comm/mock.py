@@ -22,13 +22,25 @@ Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
   reorder     True: extra random delays large enough to deliver messages of different
               (source, tag) pairs out of order; within one pair MPI's non-overtaking
               rule is kept (a message never arrives before an earlier one of its pair)
-  seed        random seed of delay / reorder
+  duplicate   messages delivered twice: a probability per message (a number in [0, 1]) or
+              the messages' numbers (a list of ints; 1 = the run's first message posted)
+  loss        messages dropped, chosen the same way; `duplicate` and `loss` are seeded by
+              `seed` (their own stream: delays do not change with them)
+  seed        random seed of delay / reorder / duplicate / loss
+  watchdog    virtual seconds a rank may wait in one receive or collective before the run
+              stops with CommError naming the rank, task, step and peer (0 = off, the default)
   timing      "model" (default) or "wall"
   mode        "execute" (real kernels) or "predict" (modelled costs, no task bodies)
   costs       cost model: None (shipped fit), a dict {kind: [a, b, c]}, a TOML path
 
 When no rank can run and not all have finished, `DeadlockError` names what every
 rank waits on; the engine never hangs.
+
+Every message carries a sequence number per (source, dest, tag) (`base.SeqCheck`);
+the receiver checks it. A message seen twice (in a receive, or still queued when the
+step ends) raises `CommError` "message duplicated"; a jump in the numbers, or a rank
+waiting for a message its sender numbered but that never came (the engine runs out
+of events), raises `CommError` "message lost". Both name the ranks, tag, task and step.
 """
 from __future__ import annotations
 
@@ -40,11 +52,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sphgraph.errors import DeadlockError, InputError
+from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.errors import SphgraphError as InternalError
 from sphgraph.registry import register
 
-from .base import CommBackend
+from .base import CommBackend, SeqCheck, where
 from .costmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
                         pairs_per_particle, task_features)
 
@@ -57,7 +69,34 @@ class _Msg:
     payload: object
     nbytes: int
     arrival: float
-    seq: int
+    seq: int                  # per (source, dest, tag), from the sender's SeqCheck
+    task: str | None = None   # the sending task and step, for reports
+    step: int | None = None
+
+
+class _Faults:
+    """Which messages a fault hits: a probability per message or explicit message numbers."""
+
+    def __init__(self, name, value, rng):
+        self.rng = rng
+        self.p, self.numbers = 0.0, frozenset()
+        if isinstance(value, (list, tuple, set, frozenset)):
+            if not all(isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k >= 1 for k in value):
+                raise InputError(f"--comm mock: {name}: expected message numbers >= 1, got {value!r}")
+            self.numbers = frozenset(int(k) for k in value)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 <= value <= 1.0:
+            self.p = float(value)
+        else:
+            raise InputError(f"--comm mock: {name}: expected a probability in [0, 1] or a list of "
+                             f"message numbers >= 1, got {value!r}")
+
+    def __bool__(self):
+        return bool(self.p or self.numbers)
+
+    def hits(self, number: int) -> bool:
+        if self.numbers:
+            return number in self.numbers
+        return self.p > 0 and self.rng.random() < self.p
 
 
 def payload_nbytes(payload) -> int:
@@ -130,6 +169,7 @@ class MockEndpoint:
                 raise DeadlockError(f"rank {self.rank} waits in {name} for a message from rank {source} "
                                     f"(tag {tag}) that the task did not declare and nobody has sent")
             m = box.popleft()
+            self.engine.accept(self.rank, source, tag, m, self.task)
             self.engine._late_arrival[self.rank] = max(self.engine._late_arrival[self.rank], m.arrival)
             p = m.payload
         self.received_rows += _rows(p)
@@ -174,7 +214,7 @@ class Engine:
     """
 
     def __init__(self, n, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH, delay=0.0,
-                 reorder=False, seed=0):
+                 reorder=False, seed=0, duplicate=0.0, loss=0.0, watchdog=0.0):
         self.n = n
         self.latency = float(latency)
         self.bandwidth = float(bandwidth)
@@ -184,13 +224,21 @@ class Engine:
         self.clock = [0.0] * n
         self.mail: dict = {}            # (source, dest, tag) -> deque[_Msg] in send order
         self._last_arrival: dict = {}   # (source, dest, tag) -> arrival of the latest message
-        self._seq = 0
+        self._last_sent: dict = {}      # (source, dest, tag) -> the latest _Msg posted
+        self.seqs = [SeqCheck(r) for r in range(n)]   # each rank's numbering and checks
+        frng = np.random.default_rng([int(seed), 1])   # faults: their own stream
+        self.duplicate = _Faults("duplicate", duplicate, frng)
+        self.loss = _Faults("loss", loss, frng)
+        self.watchdog = float(watchdog)
+        self.step = None                # the step being run (1-based), for reports
         self._late_arrival = [0.0] * n
         self.messages = 0
         self.bytes = 0
+        self.duplicated = 0             # injected faults, for tests and reports
+        self.lost = 0
 
     # -- messages ----------------------------------------------------------------------
-    def post(self, src, dest, tag, payload, nbytes, t_post):
+    def post(self, src, dest, tag, payload, nbytes, t_post, task=None):
         arrival = t_post + self.latency + nbytes / self.bandwidth
         extra = 0.0
         if self.delay > 0:
@@ -201,10 +249,53 @@ class Engine:
         key = (src, dest, tag)
         arrival = max(arrival, self._last_arrival.get(key, -np.inf))   # non-overtaking in a pair
         self._last_arrival[key] = arrival
-        self._seq += 1
-        self.mail.setdefault(key, deque()).append(_Msg(payload, nbytes, arrival, self._seq))
         self.messages += 1
         self.bytes += nbytes
+        msg = _Msg(payload, nbytes, arrival, self.seqs[src].next_send(dest, tag), task, self.step)
+        self._last_sent[key] = msg             # the sender's record of what it sent last
+        if self.loss and self.loss.hits(self.messages):
+            self.lost += 1                     # numbered by the sender, never delivered
+            return
+        box = self.mail.setdefault(key, deque())
+        box.append(msg)
+        if self.duplicate and self.duplicate.hits(self.messages):
+            self.duplicated += 1               # the network delivers the same message twice
+            box.append(msg)
+
+    def accept(self, rank, source, tag, msg, task=None):
+        """The receiver's check of a message's sequence number (CommError on a fault)."""
+        self.seqs[rank].accept(source, tag, msg.seq, task.name if task is not None else None, self.step)
+
+    def _check_queues(self):
+        """End of a step: a message still queued that repeats one received is a duplicate."""
+        for (src, dest, tag), box in self.mail.items():
+            for m in box:
+                if self.seqs[dest].duplicate(src, tag, m.seq):
+                    raise CommError(f"message duplicated: rank {dest} got message #{m.seq} from rank {src} "
+                                    f"(tag {tag}, sent{where(m.task, m.step)}) a second time: a copy is "
+                                    f"still queued at the end of "
+                                    f"{'the step' if self.step is None else f'step {self.step}'}")
+
+    def _lost(self, rank, task, m) -> str | None:
+        """A report when `rank` waits in `task` for message `m` that its sender numbered but
+        that never arrived (the engine has run out of events), else None."""
+        src = rank + m.peer
+        box = self.mail.get((src, rank, m.tag), ())
+        if self.seqs[rank].outstanding(src, m.tag, self.seqs[src], len(box)) <= 0:
+            return None
+        queued = {q.seq for q in box}
+        first = self.seqs[rank].expect.get((src, m.tag), 1)
+        want = next(k for k in range(first, self.seqs[src].sent[(rank, m.tag)] + 1) if k not in queued)
+        last = self._last_sent.get((src, rank, m.tag))
+        sent = where(last.task, last.step) if last is not None and last.seq == want else ""
+        return (f"message lost: rank {rank} waits{where(task.name, self.step)} for message #{want} from rank "
+                f"{src} (tag {m.tag}), which rank {src} sent{sent} but which never arrived")
+
+    def _watch(self, rank, task, waited, peer) -> None:
+        """Mock watchdog: a wait longer than `watchdog` virtual seconds stops the run."""
+        if self.watchdog > 0 and waited > self.watchdog:
+            raise CommError(f"watchdog: rank {rank} waited {waited:.6g} s (virtual, limit {self.watchdog:g} s)"
+                            f"{where(task.name, self.step)} for {peer}")
 
     def _missing(self, rank, task):
         """The first declared receive of `task` whose message is not posted, or None."""
@@ -217,15 +308,18 @@ class Engine:
         return None
 
     def _take(self, rank, task):
-        """Pop the task's declared messages: ({(source, tag): deque[payload]}, latest arrival)."""
+        """Pop the task's declared messages: ({(source, tag): deque[payload]}, latest arrival,
+        the peer of the latest)."""
         inbox: dict = {}
-        latest = -np.inf
+        latest, peer = -np.inf, None
         for m in task.recvs:
             src = rank + m.peer
             msg = self.mail[(src, rank, m.tag)].popleft()
-            latest = max(latest, msg.arrival)
+            self.accept(rank, src, m.tag, msg, task)
+            if msg.arrival > latest:
+                latest, peer = msg.arrival, f"rank {src} (tag {m.tag})"
             inbox.setdefault((src, m.tag), deque()).append(msg.payload)
-        return inbox, latest
+        return inbox, latest, peer
 
     # -- the loop ----------------------------------------------------------------------
     def _loop(self, programs: dict, run_task, run_collective, record):
@@ -236,6 +330,7 @@ class Engine:
         while True:
             pending = [r for r in ranks if pc[r] < len(programs[r])]
             if not pending:
+                self._check_queues()
                 return
             # collectives: run when every rank stands at the same one
             heads = {r: programs[r][pc[r]] for r in pending}
@@ -247,6 +342,10 @@ class Engine:
                 continue
             runnable = [r for r in pending if not heads[r].collective and self._missing(r, heads[r]) is None]
             if not runnable:
+                lost = next((x for r in pending if not heads[r].collective
+                             for x in [self._lost(r, heads[r], self._missing(r, heads[r]))] if x), None)
+                if lost:
+                    raise CommError(lost)
                 raise DeadlockError(self._deadlock_report(ranks, pending, heads))
             r = min(runnable, key=lambda q: (self.clock[q], q))
             run_task(r, heads[r], record)
@@ -268,6 +367,13 @@ class Engine:
                 lines.append(f"rank {r} waits in {t.name} for a message from rank {r + m.peer} (tag {m.tag})")
         return "\n".join(lines)
 
+    def _watch_collective(self, ranks, heads, t_all) -> None:
+        if self.watchdog > 0:
+            last = max(ranks, key=lambda q: (self.clock[q], -q))
+            for r in ranks:
+                self._watch(r, heads[r], t_all - self.clock[r],
+                            f"every rank (collective; rank {last} joined last)")
+
     # -- predict: modelled costs, no bodies --------------------------------------------
     def run_modelled(self, programs, cost, message_bytes, record):
         """`cost(rank, task)` -> seconds; `message_bytes(rank, task, msg)` -> bytes of a send."""
@@ -275,15 +381,17 @@ class Engine:
             start = self.clock[r]
             latest = -np.inf
             if task.recvs:
-                _, latest = self._take(r, task)
+                _, latest, peer = self._take(r, task)
+                self._watch(r, task, latest - start, peer)
             end = max(start, latest) + cost(r, task)
             for m in task.sends:
-                self.post(r, r + m.peer, m.tag, None, message_bytes(r, task, m), end)
+                self.post(r, r + m.peer, m.tag, None, message_bytes(r, task, m), end, task.name)
             self.clock[r] = end
             rec(r, task, start, end)
 
         def run_collective(ranks, heads, rec):
             t_all = max(self.clock[r] for r in ranks) + allreduce_seconds(self.n, self.latency)
+            self._watch_collective(ranks, heads, t_all)
             for r in ranks:
                 end = t_all + cost(r, heads[r])
                 rec(r, heads[r], self.clock[r], end)
@@ -299,10 +407,12 @@ class MockComm(CommBackend):
     virtual_time = True
 
     def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
-                 delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None, **options):
+                 delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None,
+                 duplicate=0.0, loss=0.0, watchdog=0.0, **options):
         if options:
             raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
-                             "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs")
+                             "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs, "
+                             "duplicate, loss, watchdog")
         super().__init__(ranks)
         if timing not in ("model", "wall"):
             raise InputError(f"--comm mock: timing: expected 'model' or 'wall', got {timing!r}")
@@ -311,14 +421,15 @@ class MockComm(CommBackend):
         speed = [1.0] * ranks if rank_speed is None else [float(s) for s in rank_speed]
         if len(speed) != ranks or any(not s > 0 for s in speed):
             raise InputError(f"--comm mock: rank_speed: expected {ranks} numbers > 0, got {rank_speed!r}")
-        for key, v in (("latency", latency), ("bandwidth", bandwidth), ("delay", delay)):
+        watchdog = 0.0 if watchdog is None else watchdog
+        for key, v in (("latency", latency), ("bandwidth", bandwidth), ("delay", delay), ("watchdog", watchdog)):
             if not isinstance(v, (int, float)) or v < 0 or (key == "bandwidth" and v == 0):
                 raise InputError(f"--comm mock: {key}: expected a number >= 0, got {v!r}")
         self.rank_speed = speed
         self.timing = timing
         self.mode = mode
         self.costs = CostModel.load(costs)
-        self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed)
+        self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed, duplicate, loss, watchdog)
         self.endpoints = [MockEndpoint(self.engine, r) for r in range(ranks)]
         self._k = {}
 
@@ -369,6 +480,7 @@ class MockComm(CommBackend):
         ctxs = {ctx.rank: ctx for ctx, _ in jobs}
         programs = {ctx.rank: prog for ctx, prog in jobs}
         wall = self.timing == "wall"
+        eng.step = _step_of(jobs)
 
         def body(r, task):
             ep = self.endpoints[r]
@@ -385,14 +497,15 @@ class MockComm(CommBackend):
         def run_task(r, task, rec):
             ep = self.endpoints[r]
             start = eng.clock[r]
-            latest = -np.inf
+            latest, peer = -np.inf, None
             if task.recvs:
-                ep.inbox, latest = eng._take(r, task)
+                ep.inbox, latest, peer = eng._take(r, task)
             dur = body(r, task)
             ep.inbox = {}
+            eng._watch(r, task, max(latest, eng._late_arrival[r]) - start, peer or "a message")
             end = max(start, latest, eng._late_arrival[r]) + dur
             for dest, tag, payload in ep.outbox:
-                eng.post(r, dest, tag, payload, payload_nbytes(payload), end)
+                eng.post(r, dest, tag, payload, payload_nbytes(payload), end, task.name)
             ep.outbox, ep.task = [], None
             eng.clock[r] = end
             rec(r, task, start, end)
@@ -426,11 +539,12 @@ class MockComm(CommBackend):
                     e = next((x for x in errors.values() if not isinstance(x, threading.BrokenBarrierError)), e)
                 raise e
             t_all = max(eng.clock[r] for r in ranks) + allreduce_seconds(self.n_ranks, eng.latency)
+            eng._watch_collective(ranks, heads, t_all)
             for r in ranks:
                 end = t_all + durs[r]
                 rec(r, heads[r], eng.clock[r], end)
                 for dest, tag, payload in self.endpoints[r].outbox:
-                    eng.post(r, dest, tag, payload, payload_nbytes(payload), end)
+                    eng.post(r, dest, tag, payload, payload_nbytes(payload), end, heads[r].name)
                 self.endpoints[r].outbox, self.endpoints[r].task = [], None
                 eng.clock[r] = end
 
@@ -444,6 +558,7 @@ class MockComm(CommBackend):
     def _predict_step(self, jobs, record):
         ctxs = {ctx.rank: ctx for ctx, _ in jobs}
         programs = {ctx.rank: prog for ctx, prog in jobs}
+        self.engine.step = _step_of(jobs)
 
         def edge_rows(r, d):
             ctx = ctxs[r]
@@ -474,6 +589,12 @@ class MockComm(CommBackend):
             return ROW_BYTES[dim]
 
         self.engine.run_modelled(programs, cost, message_bytes, record)
+
+
+def _step_of(jobs) -> int | None:
+    """The step being run, 1-based as in the solver's messages (None for bare contexts)."""
+    step = getattr(jobs[0][0].state, "step", None) if jobs else None
+    return None if step is None else int(step) + 1
 
 
 def run_programs(programs: dict, contexts: dict, comm: MockComm | None = None, record=None):
