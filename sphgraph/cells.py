@@ -105,6 +105,41 @@ def counting_sort(keys, ncells):
     return perm, start
 
 
+@njit(inline="always", cache=True)
+def cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach):
+    """Cells within `reach` of the point (x, y, z) along (fast, mid, slow), clipped to the
+    grid: (lo0, hi0, lo1, hi1, lo2, hi2, empty). A missing axis (a = -1) spans cell 0.
+    Plain @njit: CPU kernels call it and numba.cuda kernels get a device copy."""
+    lo0 = 0
+    hi0 = 0
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    empty = False
+    for k in range(3):
+        a = a0 if k == 0 else (a1 if k == 1 else a2)
+        if a < 0:
+            continue
+        o = o0 if k == 0 else (o1 if k == 1 else o2)
+        nk = n0 if k == 0 else (n1 if k == 1 else n2)
+        c = int(math.floor(((x if a == 0 else (y if a == 1 else z)) - o) * inv_size))
+        lo = max(c - reach, 0)
+        hi = min(c + reach, nk - 1)
+        if lo > hi:
+            empty = True
+        if k == 0:
+            lo0 = lo
+            hi0 = hi
+        elif k == 1:
+            lo1 = lo
+            hi1 = hi
+        else:
+            lo2 = lo
+            hi2 = hi
+    return lo0, hi0, lo1, hi1, lo2, hi2, empty
+
+
 def build_grid(pos: np.ndarray, cell_size: float, reach: int, axes: np.ndarray):
     """Grid over `pos`' bounding box; returns (grid, perm) with rows to reorder by perm."""
     lo = np.zeros(3)

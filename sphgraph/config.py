@@ -21,6 +21,9 @@ KERNELS = ("wendland", "cubic")
 DIFFUSIONS = ("none", "molteni", "fourtakas", "fourtakas-full")
 INTEGRATORS = ("verlet", "symplectic")
 CELL_SIZES = ("2h", "h")
+# particle shifting modes, in DualSPHysics' order (JSphShifting::ReadXml, <shifting mode>:
+# 0 None, 1 NoBound "ignore bound", 2 NoFixed "ignore fixed", 3 Full); see sphgraph.shifting
+SHIFTINGS = ("none", "nobound", "nofixed", "full")
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
@@ -57,6 +60,9 @@ class PhysicsConfig:
     rho_min: float = 700.0
     rho_max: float = 1300.0
     cell_size: str = "2h"
+    shifting: str = "none"              # particle shifting mode (SHIFTINGS), sphgraph.shifting
+    shifting_coef: float = -2.0         # DualSPHysics ShiftCoef (default -2): A = -coef in Lind et al.
+    shifting_tfs: float = 0.0           # DualSPHysics ShiftTFS: free-surface threshold of div r; 0 = off
 
     @classmethod
     def field_names(cls):

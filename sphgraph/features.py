@@ -7,7 +7,9 @@ solver calls it at fixed points:
 
 * ``motion`` task (after ``integrate`` of each stage; placed in the step graph only
   when :attr:`Features.motion_task` is true): :meth:`post_integrate`;
-* ``forces_interior``: :meth:`after_interior` adds the periodic-image force part;
+* each force task: :meth:`after_forces` -- ``forces_interior`` adds the periodic-image
+  force part; with shifting, every force task adds its source set's shifting sums;
+* ``integrate``: :meth:`before_integrate` / :meth:`after_integrate` (shifting);
 * the end-of-step check: :meth:`exclude` removes and counts particles out of bounds.
 
 A scene without any of them gets ``Features.none`` behaviour: no extra task, no work.
@@ -32,8 +34,7 @@ class Features:
     def motion_task(self) -> bool:
         """Whether the step graph needs the ``motion`` task."""
         s = self.scene
-        return bool(s.extra.get("motion") or s.extra.get("damping") or s.periodic
-                    or s.extra.get("shifting"))
+        return bool(s.extra.get("motion") or s.extra.get("damping") or s.periodic)
 
     def ring(self, axis, nranks: int) -> bool:
         """Whether the slab chain closes into a ring (the split axis is periodic)."""
@@ -41,7 +42,7 @@ class Features:
 
     @property
     def active(self) -> bool:
-        return self.motion_task or self.exclude_outside
+        return self.motion_task or self.exclude_outside or self.scene.physics.shifting != "none"
 
     def attach(self, sim, particles) -> None:
         """Build the features from the scene's initial ``particles`` and hook them to every rank."""
@@ -54,33 +55,41 @@ class Features:
             from .periodic import Periodic
             self.periodic = Periodic.from_scene(s, sim)
             self.periodic.attach(sim)
-        if s.extra.get("shifting"):
+        if s.physics.shifting != "none":
             from .shifting import Shifting
-            self.shifting = Shifting.from_scene(s)
+            self.shifting = Shifting.from_scene(s, sim)
         for c in sim.contexts:
             c.features = self
             c.state.extra["excluded_ids"] = np.empty(0, np.int64)
 
     # ------------------------------------------------------------------ hooks
     def post_integrate(self, ctx, stage: int) -> None:
-        """The ``motion`` task: bodies at the stage's end time; damping, shifting and
-        periodic wrapping once the step is complete (last stage)."""
+        """The ``motion`` task: bodies at the stage's end time; damping and periodic
+        wrapping once the step is complete (last stage)."""
         st = ctx.state
         last = stage >= self.stages
         t = st.time + (st.dt if last else 0.5 * st.dt)
         if self.motion is not None:
             self.motion.move(st, t)
         if last:
-            if self.shifting is not None:
-                self.shifting.apply(ctx)
             if self.damping is not None:
                 self.damping.apply(st, st.dt)
             if self.periodic is not None:
                 self.periodic.wrap(st)
 
-    def after_interior(self, ctx) -> None:
-        if self.periodic is not None:
+    def after_forces(self, ctx, part: str, stage: int) -> None:
+        if part == "interior" and self.periodic is not None:
             self.periodic.image_forces(ctx)
+        if self.shifting is not None:
+            self.shifting.accumulate(ctx, part, stage)
+
+    def before_integrate(self, ctx, stage: int) -> None:
+        if self.shifting is not None:
+            self.shifting.before_integrate(ctx, stage)
+
+    def after_integrate(self, ctx, stage: int) -> None:
+        if self.shifting is not None:
+            self.shifting.after_integrate(ctx, stage)
 
     def exclude(self, sim) -> None:
         """Remove particles outside the domain (non-periodic axes) or, fluid only, outside

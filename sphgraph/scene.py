@@ -27,7 +27,7 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes, stl
-from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, PhysicsConfig, derive
+from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS, PhysicsConfig, derive
 from .errors import InputError
 from .particles import FIXED, FLUID, MOVING, Particles
 
@@ -41,7 +41,7 @@ DEFAULT_MAX_PARTICLES = 200_000_000
 # Tables that later features read (load balancing, probes, force output, moving
 # bodies). Accepted and kept raw in Scene.extra, unvalidated, until those
 # features validate them; extend this tuple to reserve another table name.
-EXTRA_TABLES = ("balance", "probes", "forces", "motion", "damping", "shifting")
+EXTRA_TABLES = ("balance", "probes", "forces", "motion", "damping")
 TOP_KEYS = ("format", "name", "dim", "dp", "end_time", "output_interval", "domain",
             "physics", "decomposition", "initial", "limits", "fluid", "boundary") + EXTRA_TABLES
 AXES = ("x", "y", "z")
@@ -56,12 +56,12 @@ _ENTRY_KEYS = {
 }
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
-                 "cell_size": CELL_SIZES}
+                 "cell_size": CELL_SIZES, "shifting": SHIFTINGS}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
     "delta": (0, False), "verlet_euler_every": (1, False), "cfl": (0, True),
-    "hswl": (0, True), "rho_min": (0, False), "rho_max": (0, True),
+    "hswl": (0, True), "rho_min": (0, False), "rho_max": (0, True), "shifting_tfs": (0, False),
 }
 _PHYS_VECTORS = ("gravity",)
 
@@ -654,6 +654,12 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
     cfg = PhysicsConfig(**vals)
     if cfg.rho_max <= cfg.rho_min:
         raise c.error("physics.rho_max", f"a number > physics.rho_min = {cfg.rho_min}", cfg.rho_max)
+    if cfg.shifting_coef >= 0:   # DualSPHysics ShiftCoef: negative moves particles down grad C
+        raise c.error("physics.shifting_coef", "a number < 0 (DualSPHysics ShiftCoef, default -2)",
+                      cfg.shifting_coef)
+    if cfg.shifting_tfs >= dim:  # the shift is scaled by (div r - tfs)/(dim - tfs)
+        raise c.error("physics.shifting_tfs", f"a number >= 0 and < {dim} (0 = off; typically 1.5 "
+                      "in 2D, 2.75 in 3D)", cfg.shifting_tfs)
     if cfg.gravity is None:
         cfg.gravity = tuple([0.0] * (dim - 1) + [-9.81])
     return cfg

@@ -81,6 +81,11 @@ class ComputeBackend:
         raise NotImplementedError
 
 
+# particle shifting (sphgraph.shifting): partial sums per source set, added in this order.
+# A backend supports shifting when it has shift_part(state, part, mode),
+# shift_displacement(state, coefumagn, tfs, coeftfs, maxdist) and shift_apply(state).
+SHIFT_PARTS = ("interior", "halo_1", "halo_2", "halo_3")
+
 CAUSES = {1: "NaN in position or density", 2: "particle left the domain",
           3: "density outside [rho_min, rho_max]"}
 

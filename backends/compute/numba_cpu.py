@@ -10,7 +10,7 @@ from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
 
 from . import cpu_kernels as K
-from .base import ComputeBackend, dt_from_terms
+from .base import SHIFT_PARTS, ComputeBackend, dt_from_terms
 
 
 # Rows per thread below which a parallel region costs more than it saves: a
@@ -136,6 +136,44 @@ class NumbaCPU(ComputeBackend):
             K.pressure_into(p.rho, state.prm, state.press)  # stage 2 forces see the predicted density
         else:
             K.symplectic_correct(p.pos, p.vel, p.rho, *state.stage0, p.kind, state.ace, state.ar, dt, rho0)
+
+    # -- particle shifting (sphgraph.shifting), only called when the scene asks ------------
+    def shift_part(self, state, part: str, mode: int) -> None:
+        from . import cpu_shifting as S
+        p = state.particles
+        if part == "interior":
+            src, grid = (p.pos, p.rho, p.kind), state.cells
+        else:
+            halo = state.halos.get(int(part[-1]))
+            if halo is None or halo.cells is None:   # empty halo: contributes nothing
+                return
+            src, grid = (halo.pos, halo.rho, halo.kind), halo.cells
+        bufs = state.extra.setdefault("shift_parts", {})
+        b = bufs.get(part)
+        if b is None or b[1].shape[0] != p.n:
+            b = (np.zeros((p.n, p.dim), state.dtype), np.zeros(p.n, state.dtype), np.zeros(p.n, np.int8))
+        _threads(p.n, ROWS_PER_THREAD_FORCES)
+        S.shift_sums(p.pos, p.kind, *src, *grid.kernel_args(), state.prm, state.opt, mode, *b)
+        bufs[part] = b
+        state.extra.setdefault("shift_done", set()).add(part)
+
+    def shift_displacement(self, state, coefumagn, tfs, coeftfs, maxdist) -> None:
+        from . import cpu_shifting as S
+        p = state.particles
+        bufs = state.extra.get("shift_parts", {})
+        done = state.extra.pop("shift_done", set())
+        parts = [bufs[k] for k in SHIFT_PARTS if k in done]
+        out = np.zeros((p.n, p.dim), state.dtype)
+        if parts:
+            _threads(p.n, ROWS_PER_THREAD_LIGHT)
+            S.shift_reduce(tuple(b[0] for b in parts), tuple(b[1] for b in parts), tuple(b[2] for b in parts),
+                           p.vel, p.kind, coefumagn, tfs, coeftfs, maxdist, out)
+        state.extra["shift"] = out
+
+    def shift_apply(self, state) -> None:
+        from . import cpu_shifting as S
+        _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
+        S.shift_add(state.particles.pos, state.extra.pop("shift"))
 
     def check(self, state, lo, hi):
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
