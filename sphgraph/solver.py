@@ -274,6 +274,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
         out_dir = Path(out) if out is not None else Path("out") / scene.name
         if root and saved is not None:
             writer = OutputWriter.open_existing(out_dir)
+            _keep_exclusions(out_dir, sim, saved.step)
             # frames after the checkpoint go; so does an end-of-run frame at its step (not in its count)
             stray = [i for i, _, s in writer.frames if s == saved.step and i >= int(saved.meta["frames"])]
             writer.truncate(after_step=saved.step - 1 if stray else saved.step)
@@ -345,6 +346,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
         keeper.uninstall()
         prog.close()
         _write_timing(writer, sim)   # on every rank: gathers the ranks' timings under MPI
+        _write_exclusions(writer, sim)
         if writer is not None:
             if sampler is not None:
                 sampler.write(writer)
@@ -359,6 +361,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     keeper.uninstall()
     prog.close()
     _write_timing(writer, sim)
+    _write_exclusions(writer, sim)
     if writer is not None:
         if sampler is not None:
             sampler.write(writer)
@@ -403,6 +406,32 @@ def _write_balance(writer, sim) -> None:
         "policy": b.cfg.policy, "every": b.cfg.every, "threshold": b.cfg.threshold,
         "checks": len(d["step"]), "applications": int(d["applied"].sum()),
         "check_seconds": b.check_s, "apply_seconds": b.apply_s})
+
+
+def _write_exclusions(writer, sim) -> None:
+    """/exclusions: every particle removed by [domain] exclude_outside (step, time, id, cause),
+    gathered from every rank (call on every rank), sorted by (step, id)."""
+    if not sim.features.exclude_outside:
+        return
+    rows = sim.features.exclusions(sim)
+    if writer is not None and rows is not None:
+        writer.write_group("exclusions", rows, attrs={
+            "count": len(rows["id"]), "cause": f"2 = {CAUSES[2]}, 3 = {CAUSES[3]}"})
+
+
+def _keep_exclusions(out_dir, sim, step) -> None:
+    """Restart (root): the exclusions up to the checkpoint's step come from the run's /exclusions."""
+    from .io import read_group
+    if not sim.features.exclude_outside:
+        return
+    try:
+        d = read_group(out_dir, "exclusions")
+    except InputError:      # the run was killed before writing it
+        return
+    if len(d["step"]):
+        keep = np.asarray(d["step"]) <= step
+        sim.features.excluded[:0] = [(int(a), float(b), int(c), int(e)) for a, b, c, e in
+                                     zip(d["step"][keep], d["time"][keep], d["id"][keep], d["cause"][keep])]
 
 
 def _write_timing(writer, sim) -> None:
