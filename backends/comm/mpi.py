@@ -139,11 +139,12 @@ class _Watchdog:
         self.task = None          # the step task running now (name), set by execute
         self.step = None          # the step being run, 1-based
         self.io = True            # waits may include the root's output (start: frame 0, compilation)
-        self._mark = None         # (t0, peer) of the wait in progress
+        self._mark = None         # (t0, peer, what, collective) of the wait in progress
         if self.limit > 0:
             threading.Thread(target=self._run, name="sphgraph-watchdog", daemon=True).start()
 
-    def begin(self, peer: str, what: str | None = None, collective: bool = False) -> None:
+    def begin(self, peer, what: str | None = None, collective: bool = False) -> None:
+        """`peer`: (source, tag) of a receive, or words ("every rank (collective)")."""
         self._mark = (time.monotonic(), peer, what, collective)
 
     def end(self) -> None:
@@ -158,12 +159,13 @@ class _Watchdog:
                 continue
             # a collective cannot name the rank it waits for: it gives a rank waiting for a
             # message (usually that rank's neighbour, which names it) a few polls to speak first
-            limit = self.limit * (IO_FACTOR if io else 1.0) + (3 * poll if mark[3] else 0.0)
+            limit = self.limit * (IO_FACTOR if io else 1.0)
             waited = time.monotonic() - mark[0]
-            if waited > limit:
+            if waited > limit + (3 * poll if mark[3] else 0.0):
                 at = f" at step {step}" if step is not None else ""
+                peer = f"rank {mark[1][0]} (tag {mark[1][1]})" if isinstance(mark[1], tuple) else mark[1]
                 print(f"sphgraph: watchdog: rank {self.b.rank} has waited {waited:.1f} s in {task or mark[2]}"
-                      f"{at} for {mark[1]} (limit {limit:g} s, --watchdog); aborting all ranks",
+                      f"{at} for {peer} (limit {limit:g} s, --watchdog); aborting all ranks",
                       file=sys.stderr, flush=True)
                 try:
                     self.b.comm.Abort(3)
@@ -187,7 +189,7 @@ class _Endpoint:
         MPI = self.b.MPI
         st = MPI.Status()
         wd = self.b.watchdog
-        wd.begin(f"rank {source} (tag {tag})")
+        wd.begin((source, tag))      # formatted only if the watchdog fires
         self.b.comm.Probe(source=source, tag=tag, status=st)
         buf = np.empty(st.Get_count(MPI.BYTE), np.uint8)
         self.b.comm.Recv([buf, MPI.BYTE], source=source, tag=tag)
