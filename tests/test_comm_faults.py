@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,7 +27,6 @@ from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.graph.task import Message, Task
 from sphgraph.graph.tasks import tag_displaced, tag_edges
 from sphgraph.scheduler import RankContext
-from types import SimpleNamespace
 
 
 def small():
