@@ -119,6 +119,14 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--time", type=float)
     q.add_argument("--field", default="pressure")
     q.add_argument("--output", "-o")
+    q = psub.add_parser("scene3d", help="one frame of a 3D run in 3D (fluid coloured by a field)")
+    q.add_argument("outdir")
+    q.add_argument("--time", type=float)
+    q.add_argument("--field", default="speed")
+    q.add_argument("--output", "-o")
+    q = psub.add_parser("forces", help="/forces (and /probes heights) time series")
+    q.add_argument("outdir")
+    q.add_argument("--output", "-o")
     q = psub.add_parser("stability", help="stability map (CFL x coefsound) from a small sweep")
     q.add_argument("--cfl", default="0.1,0.2,0.4,0.8,1.6", help="comma-separated CFL values")
     q.add_argument("--coefsound", default="5,10,20", help="comma-separated coefsound values")
@@ -272,6 +280,10 @@ def cmd_plot(args) -> int:
         path = plots.plot_stability(cells, args.output)
     elif args.what == "snapshot":
         path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
+    elif args.what == "scene3d":
+        path = plots.plot_scene3d(args.outdir, time=args.time, field=args.field, path=args.output)
+    elif args.what == "forces":
+        path = plots.plot_forces(args.outdir, path=args.output)
     elif args.what == "balance":
         path = plots.plot_balance(args.outdir, path=args.output)
     elif args.what == "efficiency":

@@ -15,7 +15,7 @@ import numpy as np
 from .errors import InputError
 from .io import read_attrs, read_frame
 
-__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot", "plot_timeline", "plot_breakdown", "plot_schedule_graph",
+__all__ = ["SNAPSHOT_FIELDS", "plot_snapshot", "plot_scene3d", "plot_forces", "plot_timeline", "plot_breakdown", "plot_schedule_graph",
            "plot_efficiency"]
 
 
@@ -186,6 +186,91 @@ def plot_snapshot(out_dir, time: float | None = None, field: str = "pressure",
 
     if path is None:
         path = os.path.join(os.fspath(out_dir), f"snapshot_t{fr['time']:.3f}_{field}.png")
+    return _save(fig, path)
+
+
+def plot_scene3d(out_dir, time: float | None = None, field: str = "speed", path=None,
+                 max_boundary: int = 40000) -> str:
+    """A 3D view of one frame: fluid particles coloured by `field`, boundary particles grey.
+
+    For 3D runs (``sphgraph plot scene3d``); the view looks along the flume from above
+    the paddle's side. Boundary particles are thinned to at most `max_boundary` (every
+    k-th one) so the walls stay light; moving ones (kind 2) are drawn dark.
+    """
+    if field not in SNAPSHOT_FIELDS:
+        raise InputError(f"snapshot field {field!r}: expected one of {', '.join(SNAPSHOT_FIELDS)}")
+    fr = read_frame(out_dir, time=time)
+    pos = np.asarray(fr["position"], dtype=np.float64)
+    if pos.shape[1] != 3:
+        raise InputError(f"{out_dir}: scene3d: expected a 3D run, got a {pos.shape[1]}D one "
+                         "(use 'sphgraph plot snapshot')")
+    path = _check_path(path or os.path.join(os.fspath(out_dir), f"scene3d_t{fr['time']:.3f}_{field}.png"),
+                       "scene3d image")
+    label, getter = SNAPSHOT_FIELDS[field]
+    values = np.asarray(getter(fr), dtype=np.float64)
+    kind = np.asarray(fr["kind"])
+    ext = np.maximum(np.ptp(pos, axis=0), 1e-12)
+    fig = _new_figure(figsize=(10.0, 4.6))
+    ax = fig.add_subplot(projection="3d")
+    # a long flume: keep x to scale, but let y and z take at least a fifth of its length
+    ax.set_box_aspect(np.maximum(ext / ext.max(), 0.2), zoom=1.35)
+    b = np.flatnonzero(kind != 0)
+    s = float(np.clip(2.0e5 / max(len(pos), 1), 0.3, 12.0))
+    if b.size:
+        # bodies (away from the outer walls, or moving) dark; the tank's walls faint and thinned
+        dp = float(read_attrs(out_dir).get("dp", 0.0))
+        lo, hi = pos[b].min(0) + 2.5 * dp, pos[b].max(0) - 2.5 * dp
+        body = np.all(pos[b] > lo, axis=1) & np.all(pos[b][:, :2] < hi[:2], axis=1) | (kind[b] == 2)
+        walls = b[~body][::max(1, int(np.ceil((~body).sum() / max_boundary)))]
+        ax.scatter(*pos[walls].T, s=s, c="0.75", alpha=0.12, linewidths=0, depthshade=False)
+        ax.scatter(*pos[b[body]].T, s=s, c="0.3", alpha=0.8, linewidths=0, depthshade=False)
+    f = np.flatnonzero(kind == 0)
+    sc = ax.scatter(*pos[f].T, s=s, c=values[f], cmap="viridis", linewidths=0, depthshade=False)
+    fig.colorbar(sc, ax=ax, label=label, shrink=0.6, pad=0.02)
+    ax.view_init(elev=24, azim=-58)
+    ax.locator_params(nbins=4)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title(f"t = {fr['time']:.2f} s (step {fr['step']}): {len(f):,} fluid, "
+                 f"{len(pos) - len(f):,} boundary particles")
+    d = os.path.dirname(path)
+    if d:
+        os.makedirs(d, exist_ok=True)
+    fig.savefig(path, dpi=110, bbox_inches="tight", pad_inches=0.05)   # 3D axes leave wide margins
+    return path
+
+
+def plot_forces(out_dir, path=None) -> str:
+    """Time series of ``/forces`` (each body's force components) and, when the run has
+    them, the ``/probes`` surface heights, from a run's output (``sphgraph plot forces``)."""
+    from .io import read_group
+    path = _check_path(path or os.path.join(os.fspath(out_dir), "forces.png"), "forces plot")
+    forces = read_group(out_dir, "forces")
+    try:
+        probes = read_group(out_dir, "probes")
+    except InputError:
+        probes = {}
+    heights = {k: v for k, v in probes.items() if isinstance(v, dict) and "height" in v}
+    fig = _new_figure(figsize=(9.0, 6.0 if heights else 3.6))
+    axes = fig.subplots(2 if heights else 1, 1, sharex=True, squeeze=False)[:, 0]
+    t = np.asarray(forces["time"])
+    for name, v in forces.items():
+        if not isinstance(v, dict) or "force" not in v:
+            continue
+        F = np.asarray(v["force"])
+        for a in range(F.shape[1]):
+            axes[0].plot(t, F[:, a], lw=1.0, label=f"{name} F{'xyz'[a]}")
+    axes[0].set_ylabel("force [N]")
+    axes[0].legend(fontsize=8, ncol=2)
+    axes[0].grid(alpha=0.3)
+    if heights:
+        for name, v in heights.items():
+            axes[1].plot(np.asarray(probes["time"]), np.asarray(v["height"]), lw=1.0, label=name)
+        axes[1].set_ylabel("surface height [m]")
+        axes[1].legend(fontsize=8)
+        axes[1].grid(alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
 
 

@@ -44,7 +44,7 @@ def read_stl(path) -> np.ndarray:
         n = int(np.frombuffer(data, "<u4", 1, 80)[0])
         if len(data) == 84 + 50 * n:
             tris = np.frombuffer(data, _BIN_DTYPE, n, 84)["v"].astype(np.float64)
-            return _checked(tris)
+            return _checked(_decimal(tris))
     head = data[:512].lstrip().lower()
     if not head.startswith(b"solid"):
         raise MeshError(f"{len(data)} bytes that are neither a binary STL (84 + 50*T bytes) "
@@ -54,6 +54,19 @@ def read_stl(path) -> np.ndarray:
         raise MeshError(f"an ASCII STL with {len(vals)} vertices (not a multiple of 3)")
     tris = np.array(vals, dtype=np.float64).reshape(-1, 3, 3) if vals else np.empty((0, 3, 3))
     return _checked(tris)
+
+
+def _decimal(x: np.ndarray) -> np.ndarray:
+    """float32 values rounded to 7 significant digits: the decimals they were written from.
+
+    A binary STL keeps float32, so 0.1 reads as 0.10000000149: a face meant to lie on a
+    lattice plane would land a hair beside it and gain or lose a layer of particles. The
+    change is below float32's own resolution (relative 6e-8).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(x != 0, 6 - np.floor(np.log10(np.abs(x))), 0.0)
+    scale = 10.0 ** e
+    return np.where(np.isfinite(x), np.round(x * scale) / scale, x)
 
 
 def _checked(tris: np.ndarray) -> np.ndarray:
