@@ -2,9 +2,10 @@
 
 * `test_flume_regular_wave_short`: a piston flume at coarse dp = 0.03 (H = 0.08 m,
   T = 1 s, d = 0.3 m) for 3.8 s; at one wavelength from the paddle the period is within
-  5 % of T and the height within 25 % of H (measured: T -2.4 %, H -19 %; ~2.7
+  5 % of T and the height within 25 % of H (measured at coefh 1.0: T -2.4 %, H -19 %; ~2.7
   particles per wave height damp the wave -- this is NOT the issue's 5 % height target,
-  which the flume does not reach yet: dp = 0.02 gives H -24 %, see docs/features.md). The 5 % height check at finer dp and the
+  which the flume does not reach yet: dp = 0.02 gave H -24 %; the flume now uses coefh 1.2,
+  which fixes the SPH dispersion and halves the deficit (-14 % at dp 0.03), see docs/features.md). The 5 % height check at finer dp and the
   reflection coefficient are in benchmarks/wave_flume.py (numbers in BENCHMARKS.md /
   docs/features.md).
 * damping zones: the relaxation factor, and a zone takes the kinetic energy out of the
