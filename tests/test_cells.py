@@ -28,16 +28,25 @@ def test_pairs_equal_brute_force(dim, cell, slow):
     reach = 1 if cell == "2h" else 2
     grid, perm = build_grid(pos, size, reach, axis_order(dim, slow))
     sp = np.ascontiguousarray(pos[perm])
+    fluid = np.zeros(len(sp), np.int8)
     counts = np.zeros(len(sp), np.int64)
-    K.count_pairs(sp, sp, *grid.kernel_args(), 4 * h * h, counts)
+    K.count_pairs(sp, fluid, sp, fluid, *grid.kernel_args(), 4 * h * h, counts)
     np.testing.assert_array_equal(counts, brute_counts(sp, 4 * h * h))
     # a destination set that is not the source set (a halo as source)
     dst = rng.uniform(-0.3, 0.7, (300, dim)) * np.array([1.0, 0.6, 0.4][:dim])
     c2 = np.zeros(len(dst), np.int64)
-    K.count_pairs(dst, sp, *grid.kernel_args(), 4 * h * h, c2)
+    K.count_pairs(dst, np.zeros(len(dst), np.int8), sp, fluid, *grid.kernel_args(), 4 * h * h, c2)
     d = dst[:, None, :] - sp[None, :, :]
-    r2 = (d * d).sum(-1)
-    np.testing.assert_array_equal(c2, ((r2 <= 4 * h * h) & (r2 >= 1e-18)).sum(1))
+    near = ((d * d).sum(-1) <= 4 * h * h) & ((d * d).sum(-1) >= 1e-18)
+    np.testing.assert_array_equal(c2, near.sum(1))
+    # DualSPHysics' interaction count: boundary rows see fluid neighbours only
+    kind = rng.integers(0, 2, len(sp)).astype(np.int8)
+    c3 = np.zeros(len(sp), np.int64)
+    K.count_pairs(sp, kind, sp, kind, *grid.kernel_args(), 4 * h * h, c3)
+    d = sp[:, None, :] - sp[None, :, :]
+    near = ((d * d).sum(-1) <= 4 * h * h) & ((d * d).sum(-1) >= 1e-18)
+    near &= ~((kind[:, None] != 0) & (kind[None, :] != 0))
+    np.testing.assert_array_equal(c3, near.sum(1))
 
 
 def test_counting_sort_is_stable_and_complete():

@@ -48,8 +48,9 @@ class ComputeBackend:
         raise NotImplementedError
 
     def count_pairs(self, state) -> int:
-        """Pairs within 2h over owned destinations (interior + halos), each counted from
-        each side as DualSPHysics counts interactions. Host-side, for benchmarks."""
+        """Pairs within 2h over owned destinations (interior + halos), counted as
+        DualSPHysics counts interactions (from each side; boundary rows count fluid
+        neighbours only). Host-side, for benchmarks."""
         from sphgraph.cells import build_grid
         from . import cpu_kernels as K
         a = self.host_arrays(state)
@@ -57,11 +58,14 @@ class ComputeBackend:
         c = state.consts
         reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
         total = 0
-        sources = [pos] + [np.asarray(h.pos, np.float64) for h in state.halos.values() if h is not None and h.n]
-        for src in sources:
+        kind = np.ascontiguousarray(a["kind"], dtype=np.int8)
+        sources = [(pos, kind)] + [(np.asarray(h.pos, np.float64), np.asarray(h.kind, np.int8))
+                                   for h in state.halos.values() if h is not None and h.n]
+        for src, skind in sources:
             grid, perm = build_grid(src, c.cell_size, reach, state.axes)
             counts = np.zeros(len(pos), np.int64)
-            K.count_pairs(pos, np.ascontiguousarray(src[perm]), *grid.kernel_args(), 4.0 * c.h * c.h, counts)
+            K.count_pairs(pos, kind, np.ascontiguousarray(src[perm]), np.ascontiguousarray(skind[perm]),
+                          *grid.kernel_args(), 4.0 * c.h * c.h, counts)
             total += int(counts.sum())
         return total
 

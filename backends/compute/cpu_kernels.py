@@ -304,8 +304,10 @@ def gather_rows2(src, perm, dst):
 
 
 @njit(parallel=True, cache=True)
-def count_pairs(dpos, spos, start, origin, inv_size, dims, axes, reach, support2, counts):
-    """Pairs within 2h of each destination (DualSPHysics' count: from each side)."""
+def count_pairs(dpos, dkind, spos, skind, start, origin, inv_size, dims, axes, reach, support2, counts):
+    """Pairs within 2h of each destination, counted as DualSPHysics counts interactions:
+    from each side, every neighbour of a fluid row, only fluid neighbours of a boundary
+    row (boundary-boundary pairs are never evaluated)."""
     dim = dpos.shape[1]
     nf = dims[0]
     nm = dims[1]
@@ -325,6 +327,8 @@ def count_pairs(dpos, spos, start, origin, inv_size, dims, axes, reach, support2
                 if lo[0] > hi[0]:
                     continue
                 for j in range(start[row + lo[0]], start[row + hi[0] + 1]):
+                    if dkind[i] != 0 and skind[j] != 0:
+                        continue
                     r2 = 0.0
                     for d in range(dim):
                         t = dpos[i, d] - spos[j, d]

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# One batched device call (issue 6): GPU tests, SPHERIC 2 and Yeh & Petroff benchmarks,
+# float32 GPU toe against float64 CPU, and a 2-rank mpiexec run on this one GPU.
+# Every stage has its own time limit and writes under $OUT, so a stage that runs long
+# costs only itself. Run from the repository root on the GPU machine, after the
+# install line of shared/device/README.md:
+#     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
+# Stages: tests spheric2 toe yeh large multi
+set -u
+OUT=${OUT:-/tmp/gpu_out}
+mkdir -p "$OUT"
+export NUMBA_CACHE_DIR=/tmp/numba_cache
+nvidia-smi --query-gpu=name,memory.total,clocks.sm,clocks.max.sm,power.limit --format=csv >"$OUT/gpu.txt" 2>&1
+cat "$OUT/gpu.txt"
+stage() {  # name, limit seconds, command...
+  local name=$1 limit=$2; shift 2
+  local t0=$(date +%s)
+  timeout "$limit" "$@" >"$OUT/$name.log" 2>&1
+  local rc=$?
+  echo "== $name rc=$rc $(( $(date +%s) - t0 )) s"
+  tail -n 4 "$OUT/$name.log"
+}
+for s in "$@"; do
+  case $s in
+    tests)    stage tests 200 python3 -m pytest -q -m gpu -p no:cacheprovider tests/test_cuda_backend.py \
+                tests/test_shifting_cuda.py tests/test_compute_conformance.py ;;
+    spheric2) stage spheric2 330 python3 benchmarks/gpu_bench.py --dp 0.01 0.006 0.004 --steps 20 --warmup 3 \
+                --profile-steps 3 --bare --json "$OUT/spheric2.json" ;;
+    toe)      stage toe 200 python3 benchmarks/gpu_toe.py --dp 0.02 --json "$OUT/toe.json" ;;
+    yeh)      stage yeh 300 bash -c "for dp in 0.0045 0.0028 0.0017; do python3 -m sphgraph bench \
+                examples/yeh_petroff.toml --dp \$dp --steps 20 --warmup 3 --backend numba-cuda --json; done | tee $OUT/yeh.jsonl" ;;
+    large)    stage large 400 python3 benchmarks/gpu_bench.py --dp 0.002 --steps 10 --warmup 2 \
+                --profile-steps 1 --json "$OUT/large.json" ;;
+    multi)    stage multi 300 python3 benchmarks/gpu_multi.py --dp 0.01 --ranks 2 --steps 20 --warmup 3 \
+                --json "$OUT/multi.json" ;;
+    *) echo "unknown stage $s"; exit 2 ;;
+  esac
+done
