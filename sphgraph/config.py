@@ -24,6 +24,9 @@ CELL_SIZES = ("2h", "h")
 # particle shifting modes, in DualSPHysics' order (JSphShifting::ReadXml, <shifting mode>:
 # 0 None, 1 NoBound "ignore bound", 2 NoFixed "ignore fixed", 3 Full); see sphgraph.shifting
 SHIFTINGS = ("none", "nobound", "nofixed", "full")
+# wall treatment: dynamic boundaries (DualSPHysics DBC) or modified DBC (English et al. 2019,
+# sphgraph.physics.mdbc; "mdbc-noslip" also mirrors the fluid velocity), DualSPHysics SlipMode
+BOUNDARIES = ("dbc", "mdbc", "mdbc-noslip")
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
@@ -63,6 +66,7 @@ class PhysicsConfig:
     shifting: str = "none"              # particle shifting mode (SHIFTINGS), sphgraph.shifting
     shifting_coef: float = -2.0         # DualSPHysics ShiftCoef (default -2): A = -coef in Lind et al.
     shifting_tfs: float = 0.0           # DualSPHysics ShiftTFS: free-surface threshold of div r; 0 = off
+    boundary: str = "dbc"               # wall treatment (BOUNDARIES); mDBC: sphgraph.physics.mdbc
 
     @classmethod
     def field_names(cls):

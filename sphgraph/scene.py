@@ -27,7 +27,7 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes, stl
-from .config import CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS, PhysicsConfig, derive
+from .config import BOUNDARIES, CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS, PhysicsConfig, derive
 from .errors import InputError
 from .particles import FIXED, FLUID, MOVING, Particles
 
@@ -56,7 +56,7 @@ _ENTRY_KEYS = {
 }
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
-                 "cell_size": CELL_SIZES, "shifting": SHIFTINGS}
+                 "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),

@@ -95,6 +95,10 @@ class Simulation:
                           and "rebalance" in self.schedule.order)
         from .features import Features
         self.features = Features(scene)  # moving bodies, damping, periodic...: only what the scene asks
+        if phys.boundary != "dbc":   # mDBC: a user task before each force stage (or one line, exit 2)
+            from .backends.compute.cpu_mdbc import attach
+            self.schedule, self.user_tasks = attach(scene, compute_cls.name, self.nranks, self.schedule,
+                                                    self.user_tasks)
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
                                motion=self.features.motion_task)
         self.compute = compute_cls()

@@ -196,3 +196,65 @@ def test_yeh_petroff_column_force_arrives_coarse():
     r = run_case("yeh_petroff", dp=0.06, plot=False, params={"t_end": 0.6})
     assert -0.15 < r.metrics["arrival_time_err_s"] < 0.05, r.report()
     assert r.metrics["peak_force_N"] > 10.0
+
+
+MDBC_SCENE = """format = 1
+name = "mdbc_dam"
+dim = 2
+dp = 0.05
+end_time = 1.0
+output_interval = 1.0
+[domain]
+min = [-0.25, -0.25]
+max = [1.25, 1.0]
+[physics]
+boundary = "{boundary}"
+[[fluid]]
+type = "box"
+min = [0.0, 0.0]
+max = [0.4, 0.5]
+[[boundary]]
+type = "tank"
+min = [0.0, 0.0]
+max = [1.0, 0.8]
+layers = 3
+"""
+
+
+def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, capsys):
+    """`[physics] boundary = "mdbc-noslip"` through `sphgraph run`: the same particles, bit for
+    bit, as the user task the validation runner added before the key existed (explicit
+    `mdbc_tasks` + `mdbc_schedule` on the DBC scene) and as the runner's `boundary` param;
+    unsupported runs are refused at start (exit 2, one line, nothing written)."""
+    from sphgraph.backends.compute.cpu_mdbc import mdbc_schedule, mdbc_tasks
+    from sphgraph.io import read_frame
+    from sphgraph.solver import Simulation
+    from sphgraph.validation.cases import _sim
+    steps = 12
+    path = tmp_path / "mdbc.toml"
+    path.write_text(MDBC_SCENE.format(boundary="mdbc-noslip"))
+    assert main(["run", str(path), "--out", str(tmp_path / "o"), "--max-steps", str(steps), "--quiet"]) == 0
+    got = read_frame(tmp_path / "o")
+    assert got["step"] == steps
+    dbc = Scene.from_dict(Scene.from_toml(path).to_dict() | {"physics": {"boundary": "dbc"}})
+    old = Simulation(dbc, schedule=mdbc_schedule(), user_tasks=mdbc_tasks(dbc, noslip=True), invariants=False)
+    runner = _sim(dbc, "numba-cpu", None, boundary="mdbc-noslip")
+    plain = Simulation(dbc, invariants=False)
+    for s in (old, runner, plain):
+        for _ in range(steps):
+            s.step()
+    for s in (old, runner):
+        a = s.frame_arrays()
+        for k in ("position", "velocity", "density"):
+            assert np.array_equal(a[k], got[k]), k
+    wall = got["kind"] != 0
+    assert np.abs(got["velocity"][wall]).max() > 0          # mirrored fluid velocity on the walls
+    assert not np.array_equal(plain.frame_arrays()["density"], got["density"])   # DBC differs
+    capsys.readouterr()
+    for flags in (["--comm", "mock", "--ranks", "2"], ["--backend", "numba-cuda"]):
+        assert main(["run", str(path), "--out", str(tmp_path / "bad"), "--quiet", *flags]) == 2, flags
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "physics.boundary" in err[0] and "numba-cpu, one rank" in err[0], err
+        assert not (tmp_path / "bad").exists()
+    with pytest.raises(InputError, match=r"physics.boundary: expected one of \"dbc\", \"mdbc\", \"mdbc-noslip\""):
+        Scene.from_dict(dbc.to_dict() | {"physics": {"boundary": "mDBC"}})

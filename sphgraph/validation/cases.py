@@ -156,14 +156,11 @@ def scene_for(case: Case, dp: float, overrides: dict, **top):
 
 
 def _sim(scene, backend, precision, boundary="dbc", **kw):
-    """A Simulation; boundary "mdbc" / "mdbc-noslip" adds the mDBC user task (numba-cpu, 1 rank)."""
+    """A Simulation; boundary "mdbc" / "mdbc-noslip" sets the scene's `[physics] boundary`,
+    which adds the mDBC user task (numba-cpu, one rank: `cpu_mdbc.attach`), as `sphgraph run` does."""
     from ..solver import Simulation
     if boundary != "dbc":
-        from ..backends.compute.cpu_mdbc import mdbc_schedule, mdbc_tasks
-        sched = kw.pop("schedule", None)
-        order = sched["order"] if isinstance(sched, dict) else None
-        kw["schedule"] = mdbc_schedule(order)
-        kw["user_tasks"] = list(kw.pop("user_tasks", [])) + mdbc_tasks(scene, noslip=boundary == "mdbc-noslip")
+        scene = scene.with_overrides(boundary=boundary)
     try:
         return Simulation(scene, backend=backend, precision=precision, invariants=False, **kw)
     except TypeError:   # a solver without the invariants option
@@ -236,7 +233,8 @@ def run_surge_front(case, dp, prm, backend, precision, overrides):
     series["sphgraph (column height H/a)"] = (Ts, Hs, "--")
     notes = [f"T = t*sqrt(2g/a), window {T0}-{T1}; datasets: "
              + ", ".join(f"{k} = {v}" for k, v in case.reference["datasets"].items()),
-             "column height has no shipped experimental series yet: reported only"]
+             "column height H/a = highest fluid particle with x < 0.1a: reported only (the shipped "
+             "dam-break files hold the surge front Z/a only)"]
     return metrics, series, {"steps": sim.step_count, "particles": sim.n_total}, notes
 
 
