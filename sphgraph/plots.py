@@ -326,12 +326,14 @@ def plot_timeline(out_dir, path=None, steps="last3") -> str:
     return _save(fig, path)
 
 
-def plot_breakdown(out_dir, path=None) -> str:
-    """Share of each task kind per rank (the seed paper's Figs. 11-12), stacked bars."""
+def plot_breakdown(out_dir, path=None, timers: bool = True) -> str:
+    """Share of each task per rank (the seed paper's Figs. 11-12), stacked bars; by the
+    paper's timer names (SendEdge, RecvHalo, SendDisplaced, RecvDisplaced, SynchroDt,
+    Balancing, FC, NL, PU) unless `timers` is False (then by task kind)."""
     from .trace import load_timing, seconds_by_rank_and_kind
     t = load_timing(out_dir)
     path = _check_path(path or os.path.join(os.fspath(out_dir), "breakdown.png"), "breakdown")
-    per = seconds_by_rank_and_kind(t)
+    per = seconds_by_rank_and_kind(t, timers=timers)
     kinds = sorted({k for d in per.values() for k in d})
     colors = _kind_colors(kinds)
     fig = _new_figure((8.0, 4.5))

@@ -135,7 +135,10 @@ class Schedule:
             elif k == "policy" and v not in POLICIES:
                 problems.append(f"{source}: rebalance.policy: expected one of {', '.join(POLICIES)}, got {v!r}")
         if problems:
-            raise ScheduleError(problems)
+            # report the task-name problems of the same file too, so one run lists them all
+            # (user tasks are declared from Python only, so any name not a kind is listed)
+            problems += _name_problems(source, order, lanes, set())
+            raise ScheduleError(list(dict.fromkeys(problems)))
         return cls(name=name or d.get("name") or "custom", order=list(order), source=source,
                    description=d.get("description", ""), halo_order=tuple(halo), lanes=dict(lanes),
                    rebalance=dict(reb))
@@ -214,19 +217,7 @@ class Schedule:
                  ring=False) -> None:
         """Prove the schedule for `ranks` ranks; raise ScheduleError listing every problem."""
         src = self.source
-        users = {u.name: u for u in user_tasks}
-        problems = []
-        seen = set()
-        for lab in self.order:
-            if lab in seen:
-                problems.append(f"{src}: order: duplicated task {lab!r}: each task is placed exactly once")
-            seen.add(lab)
-            if lab not in users and lab not in TaskKind.labels():
-                problems.append(f"{src}: order: unknown task {lab!r}: expected one of "
-                                f"{', '.join(TaskKind.labels())} or a user task")
-        for lab in self.lanes:
-            if lab not in users and lab not in TaskKind.labels():
-                problems.append(f"{src}: lanes.{lab}: unknown task: expected one of {', '.join(TaskKind.labels())}")
+        problems = _name_problems(src, self.order, self.lanes, {u.name for u in user_tasks})
         if problems:
             raise ScheduleError(problems)
         programs = {}
@@ -259,3 +250,19 @@ class Schedule:
             lines.append(f"  [{lane}]")
             lines.extend(f"    {x}" for x in ts or ["(none)"])
         return "\n".join(lines)
+
+
+def _name_problems(src: str, order, lanes, users: set) -> list[str]:
+    """Duplicated or unknown task names in `order` and unknown tasks in `lanes`."""
+    problems, seen = [], set()
+    for lab in order:
+        if lab in seen:
+            problems.append(f"{src}: order: duplicated task {lab!r}: each task is placed exactly once")
+        seen.add(lab)
+        if lab not in users and lab not in TaskKind.labels():
+            problems.append(f"{src}: order: unknown task {lab!r}: expected one of "
+                            f"{', '.join(TaskKind.labels())} or a user task")
+    for lab in lanes:
+        if lab not in users and lab not in TaskKind.labels():
+            problems.append(f"{src}: lanes.{lab}: unknown task: expected one of {', '.join(TaskKind.labels())}")
+    return problems

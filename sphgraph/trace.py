@@ -51,12 +51,22 @@ def write_chrome_trace(out_dir, path) -> str:
     return path
 
 
-def seconds_by_rank_and_kind(t: dict) -> dict:
-    """{rank: {kind label: seconds}} over all recorded steps."""
+def seconds_by_rank_and_kind(t: dict, timers: bool = False) -> dict:
+    """{rank: {kind label: seconds}} over all recorded steps; with `timers`, grouped by the
+    seed paper's timer names instead (SendEdge, RecvHalo, SynchroDt, FC, ...; user tasks
+    keep their own name)."""
+    from .graph.kinds import TaskKind
+    names = {k.label: k.timer for k in TaskKind} if timers else {}
     out: dict = {}
     dur = np.asarray(t["end"], float) - np.asarray(t["start"], float)
     for r, name, d in zip(t["rank"], t["task"], dur):
         k = str(name).split("@")[0]
+        k = names.get(k, k)
         per = out.setdefault(int(r), {})
         per[k] = per.get(k, 0.0) + float(d)
     return out
+
+
+def steps_recorded(t: dict) -> int:
+    """Number of distinct steps in a timing table."""
+    return len(set(int(s) for s in t["step"]))

@@ -106,6 +106,11 @@ def test_validator_rejects_missing_duplicated_unknown_lane():
     rejects({"order": base_order() + ["integrate"]}, match="duplicated task 'integrate'")
     rejects({"order": base_order(), "lanes": {"send_edges": "gpu"}}, match="unknown lane 'gpu'")
     rejects({"order": base_order() + ["probe"]}, match="unknown task 'probe'")
+    # several problems of one file come out together, one line each
+    msg = rejects({"order": base_order() + ["integrate", "probe"], "lanes": {"send_edges": "gpu"}},
+                  match="unknown lane 'gpu'")
+    lines = msg.splitlines()
+    assert len(lines) == 3 and "duplicated task 'integrate'" in msg and "unknown task 'probe'" in msg
 
 
 def test_validator_rejects_receive_before_send_deadlock():
