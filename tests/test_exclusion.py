@@ -1,5 +1,6 @@
 """Open boundaries (issue 9 §3): with [domain] exclude_outside, particles leaving the domain
-are removed and counted, not fatal; 1 and 3 mock ranks exclude the same ids."""
+(cause 2) or their density bounds (cause 3) are removed and counted, not fatal; 1 and 3
+mock ranks exclude the same ids."""
 from __future__ import annotations
 
 import numpy as np
@@ -86,3 +87,71 @@ def test_exclusions_are_written_on_numerical_failure(tmp_path, monkeypatch):
         run(spill(), comm="mock", ranks=3, out=tmp_path / "o", max_steps=260, progress=False)
     rows = read_group(tmp_path / "o", "exclusions")
     assert len(rows["id"]) >= 2 and rows["step"].max() < 255
+
+
+def still_water(exclude=True):
+    # still water; bounds [950, 1050] leave ~40 kg/m3 around the hydrostatic 1000-1009
+    return Scene.from_dict({
+        "format": 1, "dim": 2, "dp": 0.04, "end_time": 1.0,
+        "domain": {"min": [-0.1, -0.1], "max": [1.7, 0.6], "origin": [0.0, 0.0],
+                   "exclude_outside": exclude},
+        "physics": {"coefsound": 10.0, "rho_min": 950.0, "rho_max": 1050.0},
+        "initial": {"hydrostatic": True},
+        "fluid": [{"type": "box", "min": [0.04, 0.04], "max": [1.56, 0.28]}],
+        "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.6, 0.5]}]})
+
+
+def set_density(sim, pid, rho):
+    """Give particle `pid` density `rho` (now and as its Verlet history) on whichever rank holds it."""
+    held = 0
+    for c in sim.contexts:
+        p = c.state.particles
+        r = np.nonzero(p.id == pid)[0]
+        p.rho[r] = rho
+        p.rho_m1[r] = rho
+        held += len(r)
+    assert held == 1
+
+
+def test_density_out_of_bounds_is_excluded_with_cause_3_on_1_and_3_ranks():
+    """Two surface particles at the 3-rank slab cuts get a density outside [950, 1050]
+    (1060 before step 1, 940 before step 31): each is removed at the end of that step
+    with cause 3, and nothing else leaves."""
+    sc = still_water()
+    p0 = sc.build_particles()
+    fl = np.nonzero(p0.kind == 0)[0]
+    probe = Simulation(sc, comm="mock", ranks=3, decomposition_axis="x")
+    cuts = [probe.contexts[r].state.cut_lo for r in (1, 2)]
+
+    def top_at(x):
+        return int(p0.id[fl[np.argmin(np.hypot(p0.pos[fl, 0] - x, p0.pos[fl, 1] - 0.28))]])
+    dense, light = top_at(cuts[0]), top_at(cuts[1])
+    out = {}
+    for ranks in (1, 3):
+        sim = Simulation(sc, comm="single" if ranks == 1 else "mock", ranks=ranks, decomposition_axis="x")
+        set_density(sim, dense, 1060.0)
+        for s in range(60):
+            if s == 30:
+                set_density(sim, light, 940.0)
+            sim.step()
+        a = sim.frame_arrays()
+        rec = sim.features.exclusions(sim)
+        ex = np.sort(np.concatenate([c.state.extra["excluded_ids"] for c in sim.contexts]))
+        assert list(rec["step"]) == [1, 31] and list(rec["id"]) == [dense, light]
+        assert list(rec["cause"]) == [3, 3]
+        assert np.array_equal(ex, np.sort([dense, light]))
+        assert np.array_equal(a["id"], np.setdiff1d(p0.id, [dense, light]))   # only they left
+        assert sim.invariants.n_excluded == 2
+        out[ranks] = (rec, a)
+    (r1, a1), (r3, a3) = out[1], out[3]
+    for k in ("step", "id", "cause"):
+        assert np.array_equal(r1[k], r3[k]), k
+    np.testing.assert_allclose(r3["time"], r1["time"], rtol=1e-12)
+    np.testing.assert_allclose(a3["position"], a1["position"], rtol=0, atol=1e-9 * 1.8)
+
+
+def test_without_exclusion_a_density_out_of_bounds_is_fatal():
+    sim = Simulation(still_water(exclude=False))
+    set_density(sim, int(np.nonzero(sim.scene.build_particles().kind == 0)[0][-1]), 1060.0)
+    with pytest.raises(NumericalError, match="step 1 .*density outside"):
+        sim.step()
