@@ -5,12 +5,16 @@ they reduce the imbalance by more than 3 % (here: percentage points of
 max_r |N_r - mean| / mean of the balanced quantity). Policies:
 
   particles  equal fluid particles per rank, halo particles included
-  time       shares proportional to each rank's measured speed (fluid particles
-             per second of force computation, exponentially weighted), so ranks
-             of different speed finish together
+  time       shares proportional to each rank's measured speed: fluid particles it
+             processed (halos included) per second of force computation over the
+             last window, exponentially averaged over the checks (`smoothing` = the
+             newest window's weight, default 0.5: weights 0.5, 0.25, 0.125...), so
+             ranks of different speed finish together
   memory     the shares of `base` (particles or time) capped by each rank's
-             particle capacity (`max_particles_per_rank`, or a GPU's free memory);
-             a scene that cannot fit at all is an InputError
+             fluid-particle capacity, asked of the compute backend at every check
+             (`ComputeBackend.particle_capacity`: the `max_particles_per_rank` option
+             on CPU and mock; free device memory / measured bytes per particle on
+             GPU, see `device_capacity`); a scene that cannot fit is an InputError
 
 Cuts are coordinates along the split axis, found on a global histogram of the
 fluid positions with bins much finer than dp (particle granularity up to ties
@@ -20,7 +24,9 @@ its neighbours' old slabs, so applying it only moves rows between neighbours
 """
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +35,35 @@ from .errors import InputError
 from .particles import FLUID
 
 POLICIES = ("particles", "time", "memory")
+CAP_SLACK = 0.01     # memory: plan loads this fraction under the caps (see Balancer._within_caps)
+BASES = ("particles", "time")
+
+
+def _int(v):
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _num(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+# key -> (valid?, expected form): the scene's [balance] table, the schedule's [rebalance]
+# table (its every/threshold/policy) and the command-line flags share these
+KEYS = {
+    "enabled": (lambda v: isinstance(v, bool), "true or false"),
+    "every": (lambda v: _int(v) and v >= 1, "an integer >= 1"),
+    "threshold": (lambda v: _num(v) and v >= 0, "a number >= 0"),
+    "policy": (lambda v: isinstance(v, str) and v in POLICIES, f"one of {', '.join(POLICIES)}"),
+    "base": (lambda v: isinstance(v, str) and v in BASES, f"one of {', '.join(BASES)}"),
+    "max_particles_per_rank": (lambda v: _int(v) and v >= 1, "an integer >= 1"),
+    "smoothing": (lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1]"),
+}
+
+
+def expected_form(key: str, value) -> str | None:
+    """None when `value` is valid for `key`, else the expected form (for one-line errors)."""
+    ok, form = KEYS[key]
+    return None if ok(value) else form
 
 
 @dataclass
@@ -39,30 +74,33 @@ class BalanceConfig:
     policy: str = "particles"
     base: str = "particles"                 # what `memory` caps
     max_particles_per_rank: int | None = None
-    smoothing: float = 1.0                  # weight of the newest sample of speeds (time policy); <1 damps noise
+    smoothing: float = 0.5                  # weight of the newest window's speeds in their exponential average
 
     @classmethod
-    def resolve(cls, schedule: dict, scene: dict, flags: dict, source="scene") -> "BalanceConfig":
-        """Precedence: command-line flag > scene [balance] > schedule [rebalance]."""
+    def resolve(cls, schedule: dict, scene: dict, flags: dict, source="scene",
+                schedule_source="schedule") -> "BalanceConfig":
+        """Precedence: command-line flag > scene [balance] > schedule [rebalance].
+
+        Each layer is validated on its own, so an error names where the value came from:
+        `SCHEDULE: rebalance.KEY`, `SCENE: balance.KEY`, or `balance=` (the Python API's
+        dict; the CLI checks its flags before, naming them)."""
+        layers = ((schedule, f"{schedule_source}: rebalance."), (scene, f"{source}: balance."),
+                  ({k: v for k, v in (flags or {}).items() if v is not None} if isinstance(flags, dict)
+                   else flags, "balance="))
         merged = {}
-        for layer in (schedule or {}, scene or {}, {k: v for k, v in (flags or {}).items() if v is not None}):
+        for layer, where in layers:
+            if layer is None:
+                continue
+            if not isinstance(layer, dict):
+                raise InputError(f"{where.rstrip('.=')}: expected a table of {', '.join(KEYS)}, got {layer!r}")
+            for k, v in layer.items():
+                if k not in KEYS:
+                    raise InputError(f"{where}{k}: unknown key: expected one of {', '.join(KEYS)}")
+                form = expected_form(k, v)
+                if form is not None:
+                    raise InputError(f"{where}{k}: expected {form}, got {v!r}")
             merged.update(layer)
-        known = {"enabled", "every", "threshold", "policy", "base", "max_particles_per_rank", "smoothing"}
-        for k in merged:
-            if k not in known:
-                raise InputError(f"{source}: balance.{k}: unknown key: expected one of {', '.join(sorted(known))}")
-        c = cls(**merged)
-        if c.policy not in POLICIES or c.base not in ("particles", "time"):
-            raise InputError(f"{source}: balance.policy: expected one of {', '.join(POLICIES)}, got {c.policy!r}")
-        if isinstance(c.every, bool) or not isinstance(c.every, int) or c.every < 1:
-            raise InputError(f"{source}: balance.every: expected an integer >= 1, got {c.every!r}")
-        if not isinstance(c.threshold, (int, float)) or c.threshold < 0:
-            raise InputError(f"{source}: balance.threshold: expected a number >= 0, got {c.threshold!r}")
-        if c.max_particles_per_rank is not None and (not isinstance(c.max_particles_per_rank, int)
-                                                     or c.max_particles_per_rank < 1):
-            raise InputError(f"{source}: balance.max_particles_per_rank: expected an integer >= 1, "
-                             f"got {c.max_particles_per_rank!r}")
-        return c
+        return cls(**merged)
 
 
 def imbalance(values) -> float:
@@ -132,8 +170,10 @@ def target_loads(cfg: BalanceConfig, total: float, speed, caps) -> np.ndarray:
         return total * share
     caps = np.asarray(caps, float)
     if caps.sum() < total:
-        raise InputError(f"balance: memory: the scene needs {int(total)} particles on {n} ranks but their "
-                         f"capacities sum to {int(caps.sum())}: use more ranks or raise max_particles_per_rank")
+        raise InputError(f"balance: memory: the scene cannot fit: it needs {int(total)} fluid particles "
+                         f"(halos included) on {n} ranks, their capacities sum to {int(caps.sum())} (per rank "
+                         f"{', '.join(str(int(c)) for c in caps)}: max_particles_per_rank, or free device "
+                         f"memory on GPU): use more ranks or raise max_particles_per_rank")
     t = np.zeros(n)
     free = np.ones(n, bool)
     left = total
@@ -148,6 +188,21 @@ def target_loads(cfg: BalanceConfig, total: float, speed, caps) -> np.ndarray:
     return t
 
 
+def device_capacity(free_bytes: float, bytes_per_particle: float, held_rows: int = 0,
+                    fixed_rows: int = 0, margin: float = 0.8) -> int | None:
+    """Fluid particles a device can hold for one rank.
+
+    Rows it holds now (`held_rows`, at `bytes_per_particle` each, measured from the rank's
+    allocations) plus what `margin` of the `free_bytes` holds at that size, less the rows
+    that are not the balanced quantity (`fixed_rows`: boundary). The margin leaves room
+    for what grows with N besides the rows (cells, scan buffers, halos). None when no
+    size was measured (nothing allocated yet)."""
+    if not bytes_per_particle > 0:
+        return None
+    rows = held_rows + int(margin * max(free_bytes, 0) // bytes_per_particle)
+    return max(rows - fixed_rows, 0)
+
+
 @dataclass
 class Balancer:
     """Runs inside the collective `rebalance` task of every rank (same inputs → same cuts)."""
@@ -156,13 +211,17 @@ class Balancer:
     axis: int
     h: float
     dp: float
-    caps: list | None = None
+    # rank state -> its fluid-particle capacity (memory policy), or None = unbounded; set by
+    # Simulation from ComputeBackend.particle_capacity. Unset: max_particles_per_rank.
+    capacity: Callable | None = None
     records: dict = field(default_factory=lambda: {"step": [], "applied": [], "fluid_count": [],
                                                    "force_seconds": [], "imbalance_before": [],
                                                    "imbalance_after": []})
-    check_s: float = 0.0
-    apply_s: float = 0.0
-    speed: np.ndarray | None = None
+    check_s: float = 0.0        # wall seconds in the rebalance task up to the decision (host sync included)
+    apply_s: float = 0.0        # wall seconds setting the new cuts (rows move in the next step)
+    move_s: float = 0.0         # seconds of the send/recv_displaced tasks that carried them (/timing clock)
+    move_step: int = -1         # the step whose displaced tasks carry the rows of the last application
+    speed: np.ndarray | None = None   # relative speeds (sum 1), exponentially averaged over the checks
     force_s: dict = field(default_factory=dict)   # rank -> force seconds since the last check
     steps_since: dict = field(default_factory=dict)
 
@@ -187,33 +246,46 @@ class Balancer:
         self.steps_since[ctx.rank] = self.cfg.every
         xa = st.particles.pos[:, self.axis]  # the slabs span all particles, fluid or not
         lo, hi = (float(xa.min()), float(xa.max())) if len(xa) else (np.inf, -np.inf)
-        info = ctx.comm.allgather((n_own, n_halo, fsec, lo, hi))
+        cap = None
+        if self.cfg.policy == "memory":
+            cap = self.capacity(st) if self.capacity is not None else self.cfg.max_particles_per_rank
+        info = ctx.comm.allgather((n_own, n_halo, fsec, lo, hi, cap))
         counts = np.array([i[0] + i[1] for i in info], float)
         fsecs = np.array([i[2] for i in info])
+        caps = np.array([np.inf if i[5] is None else float(i[5]) for i in info])
         gl, gh = min(i[3] for i in info), max(i[4] for i in info)
         bins = max(int((gh - gl) / (self.dp / 16)) + 1, 1)
         edges = np.linspace(gl, gh + 1e-9, bins + 1)
         hist = np.histogram(x, bins=edges)[0].astype(np.int64)
         hist = np.sum(ctx.comm.allgather(hist), axis=0).astype(float)
         reach = dom.reach
-        speed = counts / np.maximum(fsecs, 1e-300) if fsecs.min() > 0 else np.ones(len(counts))
-        a = self.cfg.smoothing
-        self.speed = speed if self.speed is None else a * speed + (1 - a) * self.speed
+        if fsecs.min() > 0:   # every rank measured: fold this window's speeds into the average
+            speed = counts / fsecs
+            speed = speed / speed.sum()
+            if self.speed is None or len(self.speed) != len(speed):
+                self.speed = speed
+            else:
+                a = self.cfg.smoothing
+                old = np.asarray(self.speed, float)
+                self.speed = a * speed + (1 - a) * old / old.sum()
+        speeds = self.speed if self.speed is not None else np.ones(len(counts))
         cur = loads(edges, hist, dom.cuts, reach)
         total = cur.sum()
-        caps = self.caps if self.caps is not None else [self.cfg.max_particles_per_rank or np.inf] * len(counts)
-        targets = target_loads(self.cfg, total, self.speed, caps)
+        targets = target_loads(self.cfg, total, speeds, caps)
         cuts = solve_cuts(edges, hist, dom.cuts, targets, reach, 6.0 * self.h)
         new = loads(edges, hist, cuts, reach)
+        if self.cfg.policy == "memory":
+            targets, cuts, new = self._within_caps(edges, hist, dom.cuts, reach, total, speeds, caps, cuts, new)
         # the balanced quantity: load relative to target (1 = on target)
         before = imbalance_vs(cur, targets)
         after = imbalance_vs(new, targets)
-        over_cap = self.cfg.policy == "memory" and np.any(cur > np.asarray(caps) + 0.5)
+        over_cap = self.cfg.policy == "memory" and bool(np.any(cur > caps + 0.5))
         apply = (before - after) > self.cfg.threshold or over_cap
         t1 = time.perf_counter()
         if apply:
             dom.cuts = cuts
             st.cut_lo, st.cut_hi = cuts[ctx.rank], cuts[ctx.rank + 1]
+            self.move_step = st.step + 1
         t2 = time.perf_counter()
         self.check_s += t1 - t0
         self.apply_s += t2 - t1
@@ -225,6 +297,30 @@ class Balancer:
             rec["force_seconds"].append(fsecs)
             rec["imbalance_before"].append(before)
             rec["imbalance_after"].append(after if apply else before)
+            if self.cfg.policy == "memory":
+                rec.setdefault("capacity", []).append(caps)
+
+    def _within_caps(self, edges, hist, old_cuts, reach, total, speeds, caps, cuts, new):
+        """memory: lower the capped ranks' targets until the planned loads keep CAP_SLACK
+        under their caps. Cuts have particle granularity (a lattice column is one step), the
+        halos shift the sum, and the halos counted at the next check differ from this
+        histogram's by a few particles, so a target of exactly the cap ends above it."""
+        goal = np.floor(caps * (1 - CAP_SLACK))
+        if goal.sum() < total:     # no room for the slack: aim at the caps themselves
+            goal = caps
+        eff = goal.copy()
+        targets = target_loads(self.cfg, total, speeds, caps)
+        for _ in range(6):
+            over = new - goal
+            if not np.any(over > 0):
+                break
+            eff = np.where(over > 0, eff - over, eff)
+            if eff.sum() < total:
+                break
+            targets = target_loads(self.cfg, total, speeds, eff)
+            cuts = solve_cuts(edges, hist, old_cuts, targets, reach, 6.0 * self.h)
+            new = loads(edges, hist, cuts, reach)
+        return targets, cuts, new
 
     def datasets(self) -> dict:
         r = self.records
@@ -234,7 +330,9 @@ class Balancer:
                 "fluid_count": np.array(r["fluid_count"], np.int64),
                 "force_seconds": np.array(r["force_seconds"], float),
                 "imbalance_before": np.array(r["imbalance_before"]),
-                "imbalance_after": np.array(r["imbalance_after"])}
+                "imbalance_after": np.array(r["imbalance_after"]),
+                **({"capacity": np.array(r["capacity"], float)}
+                   if len(r.get("capacity", ())) == len(r["step"]) else {})}
 
 
 def imbalance_vs(loads_, targets) -> float:

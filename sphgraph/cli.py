@@ -41,6 +41,40 @@ def _run_flags(p):
     p.add_argument("--watchdog", type=float, metavar="SECONDS",
                    help="stop every rank when one waits longer than SECONDS in a receive or collective "
                         "(MPI: default 120, 0 = off; mock: virtual seconds, off by default)")
+    # load balancing (sphgraph.balance): these flags > the scene's [balance] > the schedule's [rebalance]
+    p.add_argument("--rebalance-every", type=_balance_value("every", int), metavar="K",
+                   help="check the balance every K steps (schedule default 50)")
+    p.add_argument("--rebalance-threshold", type=_balance_value("threshold", float), metavar="X",
+                   help="apply new cuts when the imbalance drops by more than X (0.03 = 3 points)")
+    p.add_argument("--rebalance-policy", type=_balance_value("policy", str), metavar="particles|time|memory",
+                   help="balance fluid particles, measured force time, or particles within each rank's "
+                        "capacity")
+    p.add_argument("--max-particles-per-rank", type=_balance_value("max_particles_per_rank", int), metavar="N",
+                   help="memory policy: a rank's capacity in fluid particles, halos included (CPU, mock; "
+                        "on GPU it also caps the free-memory estimate)")
+    p.add_argument("--no-rebalance", action="store_true", help="no load balancing (keep the initial cuts)")
+
+
+def _balance_value(key, conv):
+    """argparse type of a balancing flag: parsed by `conv`, checked as the scene key `key`."""
+    def parse(text):
+        from .balance import expected_form
+        try:
+            v = conv(text)
+        except ValueError:
+            v = None          # not a number: reported with the key's expected form
+        form = expected_form(key, v)
+        if form is not None:
+            raise argparse.ArgumentTypeError(f"expected {form}, got {text!r}")
+        return v
+    return parse
+
+
+def _balance_flags(args) -> dict:
+    """The flag layer of BalanceConfig.resolve (None: not given)."""
+    return {"every": args.rebalance_every, "threshold": args.rebalance_threshold,
+            "policy": args.rebalance_policy, "max_particles_per_rank": args.max_particles_per_rank,
+            "enabled": False if args.no_rebalance else None}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -186,7 +220,8 @@ def cmd_run(args) -> int:
               out=args.out, overwrite=args.overwrite, precision=args.precision, end_time=args.end_time,
               max_steps=args.max_steps, dp=args.dp, progress=not args.quiet,
               comm_options=_comm_options(args), checkpoint_every=args.checkpoint_every,
-              restart=args.restart, walltime=args.walltime, invariants=not args.no_invariants)
+              restart=args.restart, walltime=args.walltime, invariants=not args.no_invariants,
+              balance=_balance_flags(args))
     if res.stopped is not None and _is_root(res):
         print(f"sphgraph: stopped by {res.stopped} at step {res.steps} (t = {res.time:.6g} s); checkpoint "
               f"{res.checkpoint}; continue with: sphgraph run {args.scene} --restart {res.out_dir}",
@@ -205,7 +240,15 @@ def _is_root(res):
 
 def cmd_bench(args) -> int:
     from .bench import bench
-    out = bench(args.scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
+    from .scene import Scene
+    flags = {k: v for k, v in _balance_flags(args).items() if v is not None}
+    scene = args.scene
+    if flags:   # bench takes no balance argument: the flags go on top of the scene's [balance]
+        scene = Scene.from_toml(args.scene)
+        table = scene.extra.get("balance", {})
+        if isinstance(table, dict):   # anything else: refused by BalanceConfig.resolve, naming the scene
+            scene.extra = {**scene.extra, "balance": {**table, **flags}}
+    out = bench(scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
                 ranks=args.ranks, schedule=args.schedule, precision=args.precision, dp=args.dp,
                 comm_options=_comm_options(args))
     if out is not None:

@@ -90,7 +90,8 @@ class Simulation:
         self.comm = comm_cls(ranks=ranks, **(comm_options or {}))
         self.nranks = self.comm.size
         self.balance_cfg = BalanceConfig.resolve(self.schedule.rebalance, scene.extra.get("balance"),
-                                                 balance, source=scene.source)
+                                                 balance, source=scene.source,
+                                                 schedule_source=self.schedule.source)
         self.rebalance = (self.nranks > 1 and self.balance_cfg.enabled
                           and "rebalance" in self.schedule.order)
         from .features import Features
@@ -121,11 +122,6 @@ class Simulation:
         self.n_fluid = particles.n_fluid
         self.dim = particles.dim
         self.ids = None
-        cap = self.balance_cfg.max_particles_per_rank
-        if self.rebalance and self.balance_cfg.policy == "memory" and cap and self.n_fluid > cap * self.nranks:
-            raise InputError(f"{scene.source}: balance.max_particles_per_rank: the scene's {self.n_fluid} fluid "
-                             f"particles cannot fit in {self.nranks} ranks of {cap}: expected a cap >= "
-                             f"{-(-self.n_fluid // self.nranks)} or more ranks")
         if self.nranks > 1:
             axis = choose_axis(decomposition_axis or scene.decomposition_axis, particles, consts.gravity)
             if axis >= self.dim:
@@ -154,6 +150,8 @@ class Simulation:
                                              comm=self.comm.endpoint(r), domain=dom,
                                              integrator=self.integrator, fixed_dt=fixed_dt, scene=scene,
                                              balancer=bal))
+        if self.rebalance and self.balance_cfg.policy == "memory":
+            self._attach_capacity(scene)
         self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
                                    rebalance=self.rebalance, motion=self.features.motion_task,
                                    ring=self.features.ring(self.axis, self.nranks))
@@ -166,6 +164,27 @@ class Simulation:
         from .invariants import Invariants
         self.invariants = Invariants(self) if invariants else None
 
+    def _attach_capacity(self, scene) -> None:
+        """memory policy: each rank's capacity from its compute backend (the option on CPU,
+        free device memory on GPU), asked again at every check; refuse a scene whose fluid
+        cannot fit at all before anything runs."""
+        cfg = self.balance_cfg
+        sharing = len(self.contexts)   # ranks of this process share its compute backend (one device)
+
+        def capacity(state):
+            return self.compute.particle_capacity(state, cfg.max_particles_per_rank, sharing)
+        caps = []
+        for c in self.contexts:
+            c.balancer.capacity = capacity
+            cap = capacity(c.state)
+            caps.append(math.inf if cap is None else cap)
+        total = self.comm.allreduce(sum(caps), "sum")
+        if total < self.n_fluid:
+            raise InputError(f"{scene.source}: balance.max_particles_per_rank: the scene's {self.n_fluid} fluid "
+                             f"particles cannot fit in {self.nranks} ranks that hold {int(total)} in all "
+                             f"(max_particles_per_rank; on GPU also the free device memory): expected a "
+                             f"capacity >= {-(-self.n_fluid // self.nranks)} per rank or more ranks")
+
     # ------------------------------------------------------------------ stepping
     def step(self) -> None:
         n = self.step_count
@@ -175,12 +194,28 @@ class Simulation:
             c.state.step = n
         bal = self.contexts[0].balancer
         self.scheduler.step(rebalance=bal is not None and bal.due(n))
+        if bal is not None and bal.move_step == n:
+            self._note_balance_move(n)
         dt = self.contexts[0].state.dt
         self.time += dt
         self.step_count = n + 1
         for c in self.contexts:
             c.state.time = self.time
         self.check()
+
+    def _note_balance_move(self, n) -> None:
+        """Rows that newly applied cuts displaced move in this step's send_displaced /
+        recv_displaced tasks (with the few that the flow moved across a cut): those tasks'
+        seconds on rank 0 (the /timing clock: virtual under mock MPI) go to `move_s`."""
+        b = next((c.balancer for c in self.contexts if c.rank == 0), None)
+        t = self.scheduler.times
+        if b is None or not self.scheduler.record_times:
+            return
+        i = len(t.step) - 1
+        while i >= 0 and t.step[i] == n:
+            if t.rank[i] == 0 and t.task[i].split("@")[0] in ("send_displaced", "recv_displaced"):
+                b.move_s += t.end[i] - t.start[i]
+            i -= 1
 
     def check(self) -> None:
         """Stop on NaN, a particle outside the domain or a density out of bounds."""
@@ -409,7 +444,10 @@ def _write_balance(writer, sim) -> None:
     writer.write_group("balance", d, attrs={
         "policy": b.cfg.policy, "every": b.cfg.every, "threshold": b.cfg.threshold,
         "checks": len(d["step"]), "applications": int(d["applied"].sum()),
-        "check_seconds": b.check_s, "apply_seconds": b.apply_s})
+        "check_seconds": b.check_s, "apply_seconds": b.apply_s, "move_seconds": b.move_s,
+        "seconds": "check_seconds, apply_seconds: wall time of rank 0 in the rebalance task (deciding; "
+                   "setting the cuts); move_seconds: rank 0's send/recv_displaced tasks in the steps "
+                   "after an application (/timing clock: virtual under mock MPI)"})
 
 
 def _write_exclusions(writer, sim) -> None:

@@ -167,3 +167,101 @@ def test_bench_json_fields():
               "backend", "comm", "ranks", "precision", "integrator", "device", "version"):
         assert k in d, k
     assert d["interactions_per_s"] > d["particle_steps_per_s"] > 0
+
+
+# --------------------------------------------------------------------------- load balancing flags
+def _balance_scene(tmp_path, table="", name="dam.toml"):
+    """The 2D dam break at dp 0.05, with an optional [balance] table."""
+    text = open(example("dambreak2d.toml")).read().replace("dp = 0.02 ", "dp = 0.05 ")
+    path = tmp_path / name
+    path.write_text(text + ("\n[balance]\n" + table if table else ""))
+    return path
+
+
+def _balance_run(tmp_path, name, scene, *flags):
+    from sphgraph.cli import main
+    from sphgraph.io import read_group
+    sched = tmp_path / "every7.toml"   # production with a schedule cadence of 7
+    if not sched.exists():
+        from importlib import resources
+        prod = resources.files("sphgraph.schedules").joinpath("production.toml").read_text()
+        sched.write_text(prod.replace("every = 50", "every = 7"))
+    out = tmp_path / name
+    rc = main(["run", str(scene), "--comm", "mock", "--ranks", "4", "--max-steps", "15", "--quiet",
+               "--schedule", str(sched), "--out", str(out), *flags])
+    assert rc == 0
+    try:
+        return read_group(out, "balance")
+    except Exception:  # noqa: BLE001 - no /balance group
+        return None
+
+
+def test_rebalance_flag_over_scene_over_schedule(tmp_path):
+    """The cadence used is the steps of /balance: schedule 7, scene 5, flag 3."""
+    plain, table = _balance_scene(tmp_path), _balance_scene(tmp_path, "every = 5\npolicy = \"time\"\n", "table.toml")
+    d = _balance_run(tmp_path, "schedule", plain)
+    assert list(d["step"]) == [6, 13] and d["attrs"]["policy"] == "particles"
+    d = _balance_run(tmp_path, "scene", table)
+    assert list(d["step"]) == [4, 9, 14] and d["attrs"]["policy"] == "time"
+    d = _balance_run(tmp_path, "flag", table, "--rebalance-every", "3", "--rebalance-threshold", "0.5",
+                     "--rebalance-policy", "memory", "--max-particles-per-rank", "900")
+    assert list(d["step"]) == [2, 5, 8, 11, 14]
+    a = d["attrs"]
+    assert a["every"] == 3 and a["threshold"] == 0.5 and a["policy"] == "memory"
+    assert np.all(d["capacity"] == 900)
+    assert _balance_run(tmp_path, "off", table, "--no-rebalance") is None
+
+
+@pytest.mark.parametrize("cmd,args,flag", [
+    ("run", ["--rebalance-every", "0"], "--rebalance-every: expected an integer >= 1"),
+    ("run", ["--rebalance-every", "often"], "--rebalance-every: expected an integer >= 1"),
+    ("run", ["--rebalance-threshold", "-0.1"], "--rebalance-threshold: expected a number >= 0"),
+    ("run", ["--rebalance-policy", "greedy"], "--rebalance-policy: expected one of particles, time, memory"),
+    ("run", ["--max-particles-per-rank", "1e6"], "--max-particles-per-rank: expected an integer >= 1"),
+    ("bench", ["--rebalance-every", "-3"], "--rebalance-every: expected an integer >= 1"),
+])
+def test_bad_rebalance_flags_exit_2(tmp_path, capsys, cmd, args, flag):
+    from sphgraph.cli import main
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD)
+    rc = main([cmd, str(scene), *args] + (["--out", str(tmp_path / "o")] if cmd == "run" else []))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and flag in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("table,key", [("evry = 5", "balance.evry: unknown key"),
+                                       ('every = "5"', "balance.every: expected an integer >= 1"),
+                                       ("policy = 3", "balance.policy: expected one of")])
+def test_bad_balance_table_exit_2_nothing_written(tmp_path, capsys, table, key):
+    from sphgraph.cli import main
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(GOOD + "[balance]\n" + table + "\n")
+    rc = main(["run", str(scene), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and key in err[0] and "tiny.toml" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_plot_balance_png(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    from sphgraph.cli import main
+    scene = _balance_scene(tmp_path)
+    assert main(["run", str(scene), "--comm", "mock", "--ranks", "4", "--max-steps", "20", "--quiet",
+                 "--rebalance-every", "5", "--out", str(tmp_path / "o")]) == 0
+    png = tmp_path / "balance.png"
+    assert main(["plot", "balance", str(tmp_path / "o"), "-o", str(png)]) == 0
+    assert png.stat().st_size > 1000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["plot", "balance", str(tmp_path / "o")]) == 0    # default: OUTDIR/balance.png
+    assert (tmp_path / "o" / "balance.png").stat().st_size > 1000
+
+
+def test_bench_takes_the_rebalance_flags(tmp_path, capsys):
+    """Schedule cadence 50: no check in 5 steps; --rebalance-every 2 places `rebalance`."""
+    import json
+    from sphgraph.cli import main
+    scene = _balance_scene(tmp_path)
+    for flags, placed in (([], False), (["--rebalance-every", "2"], True)):
+        assert main(["bench", str(scene), "--comm", "mock", "--ranks", "4", "--steps", "4", "--warmup", "1",
+                     *flags]) == 0
+        assert ("rebalance" in json.loads(capsys.readouterr().out)["task_seconds"]) is placed

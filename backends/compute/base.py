@@ -80,6 +80,13 @@ class ComputeBackend:
             n += state.cells.start.nbytes
         return n
 
+    def particle_capacity(self, state, max_particles_per_rank=None, sharing=1) -> int | None:
+        """Fluid particles (halos included) this rank may hold, for the `memory` balancing
+        policy: on CPU the `max_particles_per_rank` option, None (unbounded) without it.
+        A device backend measures it (free memory shared by `sharing` ranks of this
+        process); the option, when given, caps that too."""
+        return max_particles_per_rank
+
     def check(self, state, lo, hi) -> tuple[int, int] | None:
         """(row, cause) of a bad particle or None: cause 1 NaN, 2 left domain, 3 density bounds."""
         raise NotImplementedError

@@ -830,6 +830,22 @@ class NumbaCUDA(ComputeBackend):
         dv = state.extra.get("dev")
         return 0 if dv is None else dv.nbytes()
 
+    def particle_capacity(self, state, max_particles_per_rank=None, sharing=1) -> int | None:
+        """Free device memory (split among the `sharing` ranks on this device) at the rank's
+        measured bytes per allocated row, plus the rows it holds, less its boundary rows
+        (sphgraph.balance.device_capacity); never above `max_particles_per_rank`."""
+        from sphgraph.balance import device_capacity
+        dv = state.extra.get("dev")
+        if dv is None or CK.SIMULATOR:
+            return max_particles_per_rank
+        free, _total = cuda.current_context().get_memory_info()
+        rows = max(dv.cap, 1)
+        cap = device_capacity(free / max(sharing, 1), dv.nbytes() / rows, held_rows=rows,
+                              fixed_rows=dv.n - dv.nf)
+        if cap is None or max_particles_per_rank is None:
+            return cap if cap is not None else max_particles_per_rank
+        return min(cap, max_particles_per_rank)
+
 
 def _prm_d(self, state):
     d = self.arrays.get("prm")
