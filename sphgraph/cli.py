@@ -399,8 +399,9 @@ def main(argv=None) -> int:
         first = (sys.argv[1:] if argv is None else list(argv))[:1]
         if len(lines) > 1 and first and first[0] in ("run", "bench"):   # run: one line (DESIGN.md §5)
             lines = [f"{lines[0]} (and {len(lines) - 1} more problem(s): see `sphgraph schedule validate`)"]
-        for line in lines:
-            print(f"sphgraph: error: {line}", file=sys.stderr)
+        if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
+            for line in lines:
+                print(f"sphgraph: error: {line}", file=sys.stderr)
         return 2
     except NumericalError as e:
         if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
