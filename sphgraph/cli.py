@@ -161,11 +161,22 @@ def build_parser() -> argparse.ArgumentParser:
     q = psub.add_parser("forces", help="/forces (and /probes heights) time series")
     q.add_argument("outdir")
     q.add_argument("--output", "-o")
-    q = psub.add_parser("stability", help="stability map (CFL x coefsound) from a small sweep")
-    q.add_argument("--cfl", default="0.1,0.2,0.4,0.8,1.6", help="comma-separated CFL values")
-    q.add_argument("--coefsound", default="5,10,20", help="comma-separated coefsound values")
-    q.add_argument("--steps", type=int, default=300, help="steps per run")
-    q.add_argument("--output", "-o", default="stability.png")
+    q = psub.add_parser("stability", help="stability map from a small sweep: CFL x coefsound (--map cfl) "
+                        "or impact speed x wall model (--map penetration)")
+    q.add_argument("--map", choices=("cfl", "penetration"), default="cfl",
+                   help="cfl: elliptical drop, CFL x coefsound (default); penetration: slab against a floor, "
+                        "impact speed x wall model")
+    q.add_argument("--cfl", default="0.1,0.2,0.4,0.8,1.6", help="--map cfl: comma-separated CFL values")
+    q.add_argument("--coefsound", default="5,10,20", help="--map cfl: comma-separated coefsound values")
+    q.add_argument("--steps", type=int, default=300, help="--map cfl: steps per run")
+    q.add_argument("--speeds", default="5,10,20,40", help="--map penetration: comma-separated impact speeds [m/s]")
+    q.add_argument("--models", default="dbc-1,dbc-3,mdbc-1,mdbc-3",
+                   help="--map penetration: comma-separated wall models, BOUNDARY-LAYERS "
+                        "(dbc-1, dbc-3, mdbc-1, mdbc-3)")
+    q.add_argument("--dp", type=float, default=0.02, help="--map penetration: particle spacing [m]")
+    q.add_argument("--travel", type=float, default=0.3,
+                   help="--map penetration: run until the slab would have moved this far [m] (t = travel/speed)")
+    q.add_argument("--output", "-o", help="PNG path (default stability.png, or penetration_map.png)")
     for name, helptext in (("timeline", "per-rank Gantt chart of the tasks (paper Fig. 2)"),
                            ("breakdown", "share of each task per rank (paper Figs. 11-12)"),
                            ("balance", "fluid share and force time per rank over time (paper Figs. 5-6)")):
@@ -314,13 +325,23 @@ def cmd_trace(args) -> int:
 
 def cmd_plot(args) -> int:
     from . import plots
-    if args.what == "stability":
+    if args.what == "stability" and args.map == "penetration":
+        from .stability import model_costs, penetration_map
+        models = [m.strip() for m in args.models.split(",") if m.strip()]
+        cells = penetration_map(_floats(args.speeds, "--speeds"), models, travel=args.travel, dp=args.dp)
+        for c in cells:
+            print(f"{c['model']} {c['speed']:g} m/s: {c['verdict']}" + (f" ({c['detail']})" if c["detail"] else "")
+                  + f", {c['ms_per_step']:.3g} ms/step")
+        for m, ms in model_costs(cells).items():
+            print(f"{m}: {ms:.3g} ms/step (median over speeds)")
+        path = plots.plot_penetration(cells, args.output or "penetration_map.png")
+    elif args.what == "stability":
         from .stability import stability_map
         cells = stability_map(_floats(args.cfl, "--cfl"), _floats(args.coefsound, "--coefsound"), steps=args.steps)
         for c in cells:
             print(f"cfl {c['cfl']:g} coefsound {c['coefsound']:g}: {c['verdict']}"
                   + (f" ({c['detail']})" if c.get("detail") else ""))
-        path = plots.plot_stability(cells, args.output)
+        path = plots.plot_stability(cells, args.output or "stability.png")
     elif args.what == "snapshot":
         path = plots.plot_snapshot(args.outdir, time=args.time, field=args.field, path=args.output)
     elif args.what == "scene3d":

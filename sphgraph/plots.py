@@ -600,3 +600,54 @@ def plot_stability(cells: list, path, x="cfl", y="coefsound", title="") -> str:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.grid(alpha=0.3)
     return _save(fig, path)
+
+
+def plot_penetration(cells: list, path, title="") -> str:
+    """Wall-penetration map (`stability.penetration_map`): impact speed x wall model, each cell
+    coloured by the share of the fluid that got beyond the wall (green: held) and labelled with
+    the count; beside it each model's median wall-time per step (its cost)."""
+    from matplotlib.colors import Normalize
+    from matplotlib import colormaps
+    path = _check_path(path, "penetration map")
+    speeds = sorted({c["speed"] for c in cells})
+    models = list(dict.fromkeys(c["model"] for c in cells))
+    fig = _new_figure((9.0, 1.6 + 0.7 * len(models)))
+    ax, axc = fig.subplots(1, 2, width_ratios=[3, 1], sharey=True)
+    reds, norm = colormaps["Reds"], Normalize(0.0, 0.6)
+    for c in cells:
+        x, y = speeds.index(c["speed"]), models.index(c["model"])
+        share = c["through"] / c["n_fluid"]
+        if c["verdict"] == "stable":
+            color, text = "#9bd19b", "held"
+        elif c["through"]:
+            color, text = reds(norm(0.08 + share)), f"{c['through']}/{c['n_fluid']}\nfrom step {c['step']}"
+        else:
+            color, text = "0.7", c["verdict"]
+        if "then" in c.get("detail", ""):
+            text += "\n(then left domain)" if "domain" in c["detail"] else "\n(then blow-up)"
+        ax.add_patch(_rect((x - 0.5, y - 0.5), color))
+        ax.text(x, y, text, ha="center", va="center", fontsize=7, color="w" if share > 0.35 else "k")
+    ax.set_xlim(-0.5, len(speeds) - 0.5)
+    ax.set_ylim(len(models) - 0.5, -0.5)
+    ax.set_xticks(range(len(speeds)), [f"{v:g}" for v in speeds])
+    ax.set_yticks(range(len(models)), models)
+    ax.set_xlabel("impact speed [m/s]")
+    ax.set_ylabel("wall model (boundary-layers)")
+    ax.set_title(title or "fluid particles beyond the outermost wall row (counted from positions "
+                 "every step)", fontsize=8)
+    from .stability import model_costs
+    cost = model_costs(cells)
+    ms = [cost[m] or 0.0 for m in models]
+    axc.barh(range(len(models)), ms, color=["C0" if m.startswith("dbc") else "C1" for m in models])
+    for y, v in enumerate(ms):
+        axc.text(v, y, f" {v:.2f}", va="center", fontsize=7)
+    axc.set_xlim(0, 1.35 * max(ms + [1e-3]))
+    axc.set_xlabel("ms per step (median)")
+    axc.set_title("cost", fontsize=8)
+    axc.grid(alpha=0.3, axis="x")
+    return _save(fig, path)
+
+
+def _rect(xy, color):
+    from matplotlib.patches import Rectangle
+    return Rectangle(xy, 1.0, 1.0, facecolor=color, edgecolor="k", linewidth=0.5)

@@ -19,16 +19,21 @@ Failures (`Verdict.name`) and how each is detected:
 * ``penetration``        a fluid particle lies beyond a wall's outermost boundary layer.
 
 `stability_map(cfls, coefsounds)` runs the gravity-free elliptical drop (Monaghan 1994)
-for each pair and returns one verdict per cell (`sphgraph plot stability`).
+for each pair and returns one verdict per cell (`sphgraph plot stability`, the default
+``--map cfl``). `penetration_map(speeds, models)` shoots a slab at a floor for each impact
+speed and wall model (DBC or mDBC, 1 or 3 layers): per cell, how many fluid particles got
+beyond the floor's outermost layer (counted from the particle positions every step) and the
+wall-time per step of that model (``--map penetration``).
 """
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import NumericalError
+from .errors import InputError, NumericalError
 from .scene import Scene
 
 THRESHOLDS = {"energy_growth": 2.0, "pressure_noise": 0.05, "density_variation": 0.01,
@@ -80,14 +85,16 @@ def tank_scene(dp=0.04, diffusion="fourtakas", delta=0.1, coefsound=20.0, cfl=0.
         "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [4.0, 3.0], "layers": layers}]})
 
 
-def jet_scene(dp=0.02, speed=10.0, layers=1, coefsound=20.0, end_time=0.06, visc_alpha=0.02) -> Scene:
-    """A 0.4 x 0.2 m slab of water shot at `speed` against a floor of `layers` DBC layers (no gravity
-    needed: the impact dominates); c0 is set from the still-water scale, not from the impact speed."""
+def jet_scene(dp=0.02, speed=10.0, layers=1, coefsound=20.0, end_time=0.06, visc_alpha=0.02,
+              boundary="dbc") -> Scene:
+    """A 0.4 x 0.2 m slab of water shot at `speed` (set it with `set_jet_velocity`) against a floor
+    of `layers` boundary layers treated by `boundary` ("dbc", "mdbc", "mdbc-noslip"); no gravity
+    needed: the impact dominates; c0 is set from the still-water scale, not from the impact speed."""
     return Scene.from_dict({
         "format": 1, "name": "jet", "dim": 2, "dp": dp, "end_time": end_time,
         "domain": {"min": [-1.0, -0.5], "max": [2.0, 1.0], "origin": [0.0, 0.0]},
         "physics": {"hswl": 0.2, "coefsound": coefsound, "visc_alpha": visc_alpha, "rho_min": 100.0,
-                    "rho_max": 5000.0},
+                    "rho_max": 5000.0, "boundary": boundary},
         "fluid": [{"type": "box", "min": [0.3, 2 * dp], "max": [0.7, 0.2 + 2 * dp]}],
         "boundary": [{"type": "wall", "min": [-0.5, 0.0], "max": [1.5, 0.0], "layers": layers, "direction": "-"}]})
 
@@ -170,6 +177,22 @@ def min_fluid_distance(sim) -> float:
     return math.sqrt(best)
 
 
+def outer_wall(sim, axis: int = 1, side: int = -1) -> float:
+    """Coordinate of the outermost boundary layer along `axis`, read from the boundary particles
+    (side -1: the fluid is above it, so the lowest row)."""
+    _, p, fl = _fluid(sim)
+    x = p.pos[~fl, axis]
+    return float(x.min() if side < 0 else x.max())
+
+
+def beyond_wall(sim, wall) -> int:
+    """Fluid particles beyond `wall` = (axis, coordinate, side); side -1: fluid must stay above."""
+    _, p, fl = _fluid(sim)
+    axis, coord, side = wall
+    x = p.pos[fl, axis]
+    return int(((x < coord) if side < 0 else (x > coord)).sum())
+
+
 def density_variation(sim, rho_ref) -> float:
     st, p, fl = _fluid(sim)
     ids = p.id[fl]
@@ -204,12 +227,10 @@ def watch(sim, steps: int, every: int = 10, *, p_scale=None, noise_bound=None, d
                 return Verdict("blow-up", f"kinetic energy grew x{e / e0:.3g} by step {sim.step_count}",
                                step=sim.step_count, value=e / e0)
         if wall is not None:
-            axis, coord, side = wall
-            x = p.pos[fl, axis]
-            bad = (x < coord) if side < 0 else (x > coord)
-            if bad.any():
-                return Verdict("penetration", f"{int(bad.sum())} fluid particles beyond the wall at step "
-                               f"{sim.step_count}", step=sim.step_count, value=float(bad.sum()))
+            n = beyond_wall(sim, wall)
+            if n:
+                return Verdict("penetration", f"{n} fluid particles beyond the wall at step "
+                               f"{sim.step_count}", step=sim.step_count, value=float(n))
         if density_bound is not None:
             v = density_variation(sim, rho_ref)
             worst["density"] = max(worst.get("density", 0.0), v)
@@ -245,3 +266,73 @@ def stability_map(cfls, coefsounds, steps=300, dp=0.04, A=5.0) -> list[dict]:
             cells.append({"cfl": cfl, "coefsound": cs, "verdict": v.name, "detail": v.detail, "value": v.value,
                           "step": v.step})
     return cells
+
+
+# wall models of the penetration map: label -> ([physics] boundary, layers)
+WALL_MODELS = {"dbc-1": ("dbc", 1), "dbc-3": ("dbc", 3), "mdbc-1": ("mdbc", 1), "mdbc-3": ("mdbc", 3)}
+
+
+def penetration_map(speeds, models=tuple(WALL_MODELS), travel=0.3, dp=0.02, max_steps=20000,
+                    warmup=10) -> list[dict]:
+    """A slab hitting the floor (`jet_scene`) at each impact speed [m/s], for each wall model of
+    `WALL_MODELS`: one cell per (speed, model).
+
+    Each run lasts until the slab, left alone, would have moved `travel` metres (t = travel /
+    speed; 0.3 m is 1.5 slab heights: the impact is over and the water spread on the floor), at
+    most `max_steps` steps. After every step the fluid particles below the floor's outermost
+    boundary row (its coordinate read from the boundary particles, `outer_wall`) are counted
+    from their positions (`beyond_wall`). The models of one speed run one after the other, so
+    a change in the machine's load hits them alike.
+
+    Cell keys: ``through`` the most fluid particles beyond the wall at once (0: held) of
+    ``n_fluid``; ``step`` the first step with any; ``verdict`` "penetration", "stable", or
+    "blow-up" (the solver stopped with `NumericalError` before any crossing; after one the
+    verdict stays "penetration" and ``detail`` names the error); ``steps`` / ``time`` how far
+    it ran; ``ms_per_step`` the median wall-time of one `sim.step()` past the first `warmup`
+    steps (JIT compilation): the model's cost."""
+    from .solver import Simulation
+    unknown = [m for m in models if m not in WALL_MODELS]
+    if unknown:
+        raise InputError(f"--models: unknown wall model {unknown[0]!r}; expected some of "
+                         f"{', '.join(WALL_MODELS)}")
+    cells = []
+    for speed in speeds:
+        if not speed > 0:
+            raise InputError(f"--speeds: expected impact speeds > 0 m/s, got {speed:g}")
+        for model in models:
+            boundary, layers = WALL_MODELS[model]
+            sim = Simulation(jet_scene(dp=dp, layers=layers, boundary=boundary), invariants=False)
+            set_jet_velocity(sim, speed)
+            wall = (1, outer_wall(sim), -1)
+            through, first, error, times = 0, None, "", []
+            while sim.time < travel / speed and len(times) < max_steps:
+                t0 = time.perf_counter()
+                try:
+                    sim.step()
+                except NumericalError as e:
+                    error = f"{e.cause} at step {e.step}"
+                    break
+                times.append(time.perf_counter() - t0)
+                n = beyond_wall(sim, wall)
+                if n and first is None:
+                    first = sim.step_count
+                through = max(through, n)
+            verdict = "penetration" if through else ("blow-up" if error else "stable")
+            detail = f"{through} of {sim.n_fluid} fluid particles through from step {first}" if through else ""
+            if error:
+                detail = f"{detail}; then {error}" if detail else error
+            timed = times[warmup:] or times
+            cells.append({"model": model, "boundary": boundary, "layers": layers, "speed": speed,
+                          "verdict": verdict, "through": through, "n_fluid": sim.n_fluid, "step": first,
+                          "detail": detail, "steps": len(times), "time": sim.time,
+                          "ms_per_step": 1e3 * float(np.median(timed)) if timed else None})
+    return cells
+
+
+def model_costs(cells: list) -> dict:
+    """Median ``ms_per_step`` of each wall model over its cells of a `penetration_map`."""
+    out = {}
+    for m in dict.fromkeys(c["model"] for c in cells):
+        ms = [c["ms_per_step"] for c in cells if c["model"] == m and c["ms_per_step"] is not None]
+        out[m] = float(np.median(ms)) if ms else None
+    return out

@@ -108,3 +108,31 @@ def test_cli_plot_stability(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "cfl 0.2 coefsound 20: stable" in out and "cfl 3.2 coefsound 20: blow-up" in out
     assert png.stat().st_size > 1000
+
+
+def test_penetration_map_cells_come_from_the_state(monkeypatch):
+    """Coarse slab-on-floor map (dp 0.04): one DBC layer at 40 m/s lets fluid through, three
+    layers at 10 m/s hold; with the velocity never set (same speed parameter, fluid at rest)
+    the same cell holds: the count is read from the particle positions."""
+    from sphgraph import stability
+    cells = stability.penetration_map([10.0, 40.0], ["dbc-1", "dbc-3"], dp=0.04)
+    got = {(c["model"], c["speed"]): c for c in cells}
+    bad, held = got[("dbc-1", 40.0)], got[("dbc-3", 10.0)]
+    assert bad["verdict"] == "penetration" and bad["through"] > 0 and bad["step"] is not None, bad
+    assert held["verdict"] == "stable" and held["through"] == 0 and held["time"] >= 0.3 / 10.0, held
+    assert all(c["ms_per_step"] > 0 for c in cells)
+    monkeypatch.setattr(stability, "set_jet_velocity", lambda sim, speed: None)
+    still = stability.penetration_map([40.0], ["dbc-1"], dp=0.04)[0]
+    assert still["verdict"] == "stable" and still["through"] == 0, still
+
+
+def test_cli_plot_stability_penetration(tmp_path, capsys):
+    from sphgraph.cli import main
+    png = tmp_path / "pen.png"
+    assert main(["plot", "stability", "--map", "penetration", "--speeds", "40", "--models", "dbc-1,mdbc-3",
+                 "--dp", "0.04", "-o", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "dbc-1 40 m/s: penetration (" in out and "mdbc-3: " in out and "ms/step" in out
+    assert png.stat().st_size > 1000
+    assert main(["plot", "stability", "--map", "penetration", "--models", "dbc-2", "-o", str(png)]) == 2
+    assert "expected some of dbc-1, dbc-3, mdbc-1, mdbc-3" in capsys.readouterr().err
