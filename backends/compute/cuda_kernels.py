@@ -697,20 +697,20 @@ def k_keys_hist2(px, py, pz, kind, n, dim, ox, oy, oz, inv_size, nx, ny, nz, sx,
 
 # ----------------------------------------------------------------- rows between ranks
 # Rows leaving a slab are found and removed on the device (only they cross the bus):
-# k_mig_flags marks the rows that stay and appends the leaving ones to a short list
-# (row * 2 + side, any order: the host sorts it); the kept rows are compacted in their
-# old order (an exclusive scan of the flags, then k_compact_perm and the usual gather).
+# k_mig_keep flags the rows that stay and counts the leaving ones; an exclusive scan of
+# the flags gives each kept row its new place (k_compact_perm, then the usual gather)
+# and each leaving row its place in the message (k_pack_leaving: increasing row order;
+# the host tells the sides apart by position).
 
-def k_mig_flags(pa, n, lo, hi, keep, out, cap, count):
+def k_mig_keep(pa, n, lo, hi, keep, count):
+    """keep[i] = 1 for rows in [lo, hi) along the split axis, else 0 (counted)."""
     i = cuda.grid(1)
     if i >= n:
         return
     x = pa[i]
     if x < lo or x >= hi:
         keep[i] = 0
-        slot = cuda.atomic.add(count, 0, 1)
-        if slot < cap:
-            out[slot] = 2 * i + (1 if x >= hi else 0)
+        cuda.atomic.add(count, 0, 1)
     else:
         keep[i] = 1
 
@@ -719,6 +719,96 @@ def k_compact_perm(keep, pos, n, perm):
     i = cuda.grid(1)
     if i < n and keep[i] != 0:
         perm[pos[i]] = i
+
+
+# Packed transfers: every field a message needs is gathered into (or scattered from) one
+# device buffer by one launch and crosses the bus in one copy. Row records of the run's
+# type, `w = dim + 5` values per row: (vm_x, vm_y[, vm_z], vx, vy, vz, rho, rho_m1),
+# i.e. the history, the vel4 record, the density history; positions are float64 records
+# of `dim` values.
+
+def k_pack_leaving(keep, pos, n, dim, px, py, pz, vmx, vmy, vmz, vel4, rhom, kind, ids,
+                   o64, of, okind, oid):
+    """Rows with keep == 0 into slot i - pos[i] (pos: exclusive scan of keep), so the
+    leaving rows come out in increasing row order."""
+    i = cuda.grid(1)
+    if i >= n or keep[i] != 0:
+        return
+    j = i - pos[i]
+    b = j * dim
+    o64[b] = px[i]
+    o64[b + 1] = py[i]
+    w = dim + 5
+    f = j * w
+    of[f] = vmx[i]
+    of[f + 1] = vmy[i]
+    if dim == 3:
+        o64[b + 2] = pz[i]
+        of[f + 2] = vmz[i]
+    s = 4 * i
+    of[f + dim] = vel4[s]
+    of[f + dim + 1] = vel4[s + 1]
+    of[f + dim + 2] = vel4[s + 2]
+    of[f + dim + 3] = vel4[s + 3]
+    of[f + dim + 4] = rhom[i]
+    okind[j] = kind[i]
+    oid[j] = ids[i]
+
+
+def k_unpack_rows(n0, m, dim, i64, if_, ikind, iid, px, py, pz, vmx, vmy, vmz, vel4, rhom, kind, ids):
+    """Records packed as k_pack_leaving packs them, written to rows n0 .. n0+m-1."""
+    j = cuda.grid(1)
+    if j >= m:
+        return
+    i = n0 + j
+    b = j * dim
+    px[i] = i64[b]
+    py[i] = i64[b + 1]
+    w = dim + 5
+    f = j * w
+    vmx[i] = if_[f]
+    vmy[i] = if_[f + 1]
+    if dim == 3:
+        pz[i] = i64[b + 2]
+        vmz[i] = if_[f + 2]
+    s = 4 * i
+    vel4[s] = if_[f + dim]
+    vel4[s + 1] = if_[f + dim + 1]
+    vel4[s + 2] = if_[f + dim + 2]
+    vel4[s + 3] = if_[f + dim + 3]
+    rhom[i] = if_[f + dim + 4]
+    kind[i] = ikind[j]
+    ids[i] = iid[j]
+
+
+def k_pack_edge(px, py, pz, vel4, kind, a0, m0, a1, m, dim, o64, o4, okind):
+    """Rows a0 .. a0+m0-1 then a1 .. a1+(m-m0)-1 (the fluid and boundary candidate
+    ranges of an edge): float64 position records, vel4 records, kinds."""
+    j = cuda.grid(1)
+    if j >= m:
+        return
+    i = a0 + j if j < m0 else a1 + (j - m0)
+    b = j * dim
+    o64[b] = px[i]
+    o64[b + 1] = py[i]
+    if dim == 3:
+        o64[b + 2] = pz[i]
+    s = 4 * i
+    d = 4 * j
+    o4[d] = vel4[s]
+    o4[d + 1] = vel4[s + 1]
+    o4[d + 2] = vel4[s + 2]
+    o4[d + 3] = vel4[s + 3]
+    okind[j] = kind[i]
+
+
+def k_pick4(src, i0, i1, i2, i3, out):
+    """Four entries of src (e.g. cell starts) for one copy to the host."""
+    if cuda.grid(1) == 0:
+        out[0] = src[i0]
+        out[1] = src[i1]
+        out[2] = src[i2]
+        out[3] = src[i3]
 
 
 def k_gather4(src, perm, n, dst):
@@ -1050,7 +1140,8 @@ def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_si
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
             "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
             "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
-            "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2", "k_mig_flags", "k_compact_perm")
+            "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2", "k_compact_perm",
+            "k_mig_keep", "k_pack_leaving", "k_unpack_rows", "k_pack_edge", "k_pick4")
 _FAST = {"k_forces", "k_count_pairs", "k_count_pairs2"}
 _BUILT: dict = {}
 

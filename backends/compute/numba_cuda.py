@@ -51,6 +51,10 @@ class DeviceState:
         self.scan_tmp = []
         self.pinned_dt = cuda.pinned_array(3, np.float64) if not CK.SIMULATOR else np.zeros(3)
         self.pinned_chk = cuda.pinned_array(7, np.float64) if not CK.SIMULATOR else np.zeros(7)
+        self.pinned_i4 = cuda.pinned_array(4, np.int32) if not CK.SIMULATOR else np.zeros(4, np.int32)
+        self.pinned_xfer = None                     # staging of packed messages (host_buf)
+        self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
+        self.halo_last = None                       # the halo prepared last (may not be in state.halos yet)
         self.host_stale = False
         self.final = True
 
@@ -91,10 +95,27 @@ class DeviceState:
             return None
         return p4.view(dtype)[:m]
 
+    def host_buf(self, nbytes):
+        """The first `nbytes` of a reusable page-locked host buffer (uint8; plain numpy in
+        the simulator), grown with spare room when a message outgrows it. Every copy
+        through it is synchronous, and what is read from it is copied out."""
+        b = self.pinned_xfer
+        if b is None or b.shape[0] < nbytes:
+            cap = int(nbytes * 1.5) + 4096
+            b = self.pinned_xfer = cuda.pinned_array(cap, np.uint8) if not CK.SIMULATOR else np.empty(cap, np.uint8)
+        return b[:nbytes]
+
+    def dev_buf(self, name, nbytes):
+        """The first `nbytes` of the device scratch `arrays[name]` (uint8), grown with spare room."""
+        a = self.arrays.get(name)
+        if a is None or a.shape[0] < nbytes:
+            a = self.arrays[name] = cuda.device_array(int(nbytes * 1.5) + 4096, np.uint8)
+        return a[:nbytes]
+
     def nbytes(self) -> int:
         seen = set()
         total = 0
-        for a in list(self.arrays.values()) + self.scan_tmp + \
+        for a in list(self.arrays.values()) + self.scan_tmp + [h["buf"] for h in self.halo_pool] + \
                 [x for b in self.parts.values() for x in b.values()]:
             if id(a) not in seen:
                 seen.add(id(a))
@@ -110,6 +131,30 @@ def _every4(a, k):
     it = a.dtype.itemsize
     return type(a)(shape=((a.shape[0] - k + 3) // 4,), strides=(4 * it,), dtype=a.dtype,
                    gpu_data=a.gpu_data.view(k * it))
+
+
+def _layout(fields):
+    """Packing of several arrays in one byte buffer: fields = [(name, dtype, count)] ->
+    ({name: (offset, dtype, count)}, total bytes). Widest items first, so every offset
+    is a multiple of its item size and nothing is padded (the bytes are the fields')."""
+    out, off = {}, 0
+    for name, dt, cnt in sorted(fields, key=lambda f: -np.dtype(f[1]).itemsize):
+        dt = np.dtype(dt)
+        out[name] = (off, dt, int(cnt))
+        off += dt.itemsize * int(cnt)
+    return out, off
+
+
+def _split(buf, lay):
+    """Typed views of a flat uint8 buffer (host or device) by a _layout."""
+    return {k: buf[o:o + dt.itemsize * c].view(dt) for k, (o, dt, c) in lay.items()}
+
+
+def _row_layout(dv, m):
+    """m rows as rank-to-rank messages carry them (k_pack_leaving / k_unpack_rows):
+    float64 positions, run-type records (history, vel4, rho_m1), kinds, ids."""
+    return _layout([("pos", np.float64, m * dv.dim), ("f", dv.dtype, m * (dv.dim + 5)), ("kind", np.int8, m),
+                    ("id", dv.arrays["id"].dtype, m)])
 
 
 def _count(state, direction, kind, nbytes):
@@ -238,6 +283,8 @@ class NumbaCUDA(ComputeBackend):
         dv.__dict__["host_obj"] = p
         if old is not None and "integrator" in old.__dict__:
             dv.__dict__["integrator"] = old.__dict__["integrator"]
+        if old is not None:     # staging and halo buffers outlive a re-upload
+            dv.pinned_xfer, dv.halo_pool, dv.halo_last = old.pinned_xfer, old.halo_pool, old.halo_last
         state.extra["dev"] = dv
         _count(state, "h2d_bytes", "upload", up)
         state.parts = {}
@@ -305,73 +352,67 @@ class NumbaCUDA(ComputeBackend):
     def _remove_rows(self, state, dv, domain):
         """{-1: rows below lo, +1: rows at or above hi} as host Particles, removed from
         the device rows (kept rows compacted in their order); None when more rows leave
-        than the list holds (the caller then goes through the host)."""
-        from sphgraph.particles import Particles
+        than max(1024, n / 32) (the caller then goes through the host). Bus: the count,
+        then the leaving rows packed in one buffer (k_pack_leaving), one copy."""
         k = self._k(state)
-        n, dim, A = dv.n, dv.dim, dv.arrays
+        n, A = dv.n, dv.arrays
         lim = max(1024, n // 32)
-        if "mig_out" not in A or A["mig_out"].shape[0] < lim:
-            A["mig_out"] = cuda.device_array(lim, np.int32)
+        if "mig_cnt" not in A:
             A["mig_cnt"] = cuda.device_array(1, np.int32)
-        lim = A["mig_out"].shape[0]
         keep = A["ax"].view(np.int32)[:n]          # accelerations are dead until the forces
         pos = A["ay"].view(np.int32)[:n]
-        A["mig_cnt"].copy_to_device(np.zeros(1, np.int32))
+        cnt = A["mig_cnt"]
+        k.k_fill[1, 1](cnt, 1, 0)
         b = CK.blocks(n)
-        k.k_mig_flags[b, CK.BLOCK](A["p" + _VEC[domain.axis]], n, float(domain.lo), float(domain.hi),
-                                   keep, A["mig_out"], lim, A["mig_cnt"])
-        m = int(A["mig_cnt"].copy_to_host()[0])
+        k.k_mig_keep[b, CK.BLOCK](A["p" + _VEC[domain.axis]], n, float(domain.lo), float(domain.hi), keep, cnt)
+        cnt.copy_to_host(dv.pinned_i4[:1])
+        m = int(dv.pinned_i4[0])
         _count(state, "d2h_bytes", "displaced", 4)
         if m > lim:
             return None
-        code = np.sort(A["mig_out"][:m].copy_to_host()) if m else np.zeros(0, np.int32)
-        rows = {-1: code[code % 2 == 0] // 2, 1: code[code % 2 == 1] // 2}
-        out = {}
-        for side, r in rows.items():
-            out[side] = self._rows_to_host(state, dv, k, r.astype(np.int32))
-        if m:
-            self._scan(dv, k, keep, pos, n)
-            k.k_compact_perm[b, CK.BLOCK](keep, pos, n, dv.perm)
-            dv.n = n - m
-            dv.nf -= sum(int(np.count_nonzero(o.kind == 0)) for o in out.values())
-            self._permute(state, dv, k)
-            self._host_rows_changed(state, dv)
+        if m == 0:
+            empty = state.particles.take(np.zeros(0, np.int64))
+            return {-1: empty, 1: empty}
+        self._scan(dv, k, keep, pos, n)
+        out = self._rows_to_host(state, dv, k, keep, pos, m, domain)
+        k.k_compact_perm[b, CK.BLOCK](keep, pos, n, dv.perm)
+        dv.n = n - m
+        dv.nf -= sum(int(np.count_nonzero(o.kind == 0)) for o in out.values())
+        self._permute(state, dv, k)
+        self._host_rows_changed(state, dv)
         return out
 
-    def _rows_to_host(self, state, dv, k, rows):
-        """Device rows `rows` (sorted host index array) as host Particles."""
+    def _rows_to_host(self, state, dv, k, keep, pos, m, domain):
+        """The m rows with keep == 0 (pos: exclusive scan of keep) as host Particles by
+        side, each in increasing row order: one packing launch, one copy to the pinned
+        staging buffer; the side of a row is read from its position on the host (the
+        same comparison as k_mig_keep)."""
         from sphgraph.particles import Particles
         p = state.particles
-        m, dim, A = len(rows), dv.dim, dv.arrays
-        if m == 0:
-            return p.take(np.zeros(0, np.int64))
-        idx = cuda.to_device(rows)
-        b = CK.blocks(m)
-        down = 0
-
-        def get(name):
-            nonlocal down
-            src = A[name]
-            dst = cuda.device_array(m, src.dtype)
-            k.k_gather[b, CK.BLOCK](src, idx, m, dst)
-            h = dst.copy_to_host()
-            down += h.nbytes
-            return h
-
-        pos = np.stack([get("p" + _VEC[d]) for d in range(dim)], axis=1)
-        vm = np.stack([get("vm" + _VEC[d]) for d in range(dim)], axis=1)
-        v4d = cuda.device_array(4 * m, dv.dtype)
-        k.k_gather4[b, CK.BLOCK](A["vel4"], idx, m, v4d)
-        v4 = v4d.copy_to_host().reshape(m, 4)
-        down += v4.nbytes
-        _count(state, "h2d_bytes", "displaced", rows.nbytes)
-        r = Particles(id=get("id").astype(np.int64), kind=get("kind"), pos=pos.astype(p.pos.dtype, copy=False),
-                      vel=np.ascontiguousarray(v4[:, :dim]).astype(p.vel.dtype, copy=False),
-                      rho=np.ascontiguousarray(v4[:, 3]).astype(p.rho.dtype, copy=False),
-                      vel_m1=vm.astype(p.vel_m1.dtype, copy=False),
-                      rho_m1=get("rhom").astype(p.rho_m1.dtype, copy=False))
-        _count(state, "d2h_bytes", "displaced", down)
-        return r
+        n, dim, A = dv.n, dv.dim, dv.arrays
+        lay, nb = _row_layout(dv, m)
+        dbuf = dv.dev_buf("xfer", nb)
+        d = _split(dbuf, lay)
+        k.k_pack_leaving[CK.blocks(n), CK.BLOCK](keep, pos, n, dim, A["px"], A["py"], A["pz"], A["vmx"], A["vmy"],
+                                                  A["vmz"], A["vel4"], A["rhom"], A["kind"], A["id"],
+                                                  d["pos"], d["f"], d["kind"], d["id"])
+        hb = dv.host_buf(nb)
+        dbuf.copy_to_host(hb)
+        _count(state, "d2h_bytes", "displaced", nb)
+        h = _split(hb, lay)
+        P = h["pos"].reshape(m, dim)
+        F = h["f"].reshape(m, dim + 5)
+        x = P[:, domain.axis]
+        out = {}
+        for side, sel in ((-1, x < float(domain.lo)), (1, x >= float(domain.hi))):
+            f = F[sel]                    # boolean indexing copies: nothing aliases the staging buffer
+            out[side] = Particles(id=h["id"][sel].astype(np.int64), kind=h["kind"][sel],
+                                  pos=P[sel].astype(p.pos.dtype, copy=False),
+                                  vel=np.ascontiguousarray(f[:, dim:2 * dim]).astype(p.vel.dtype, copy=False),
+                                  rho=np.ascontiguousarray(f[:, dim + 3]).astype(p.rho.dtype, copy=False),
+                                  vel_m1=np.ascontiguousarray(f[:, :dim]).astype(p.vel_m1.dtype, copy=False),
+                                  rho_m1=np.ascontiguousarray(f[:, dim + 4]).astype(p.rho_m1.dtype, copy=False))
+        return out
 
     def _host_rows_changed(self, state, dv):
         """The host rows no longer match the device's in number: a stale placeholder of
@@ -405,24 +446,27 @@ class NumbaCUDA(ComputeBackend):
         from sphgraph.particles import Particles
         r = Particles.concat(rows)
         n, dim, A = dv.n, dv.dim, dv.arrays
-        up = 0
-
-        def put(name, host, lo=n, per=1):
-            nonlocal up
-            h = np.ascontiguousarray(host, dtype=A[name].dtype)
-            A[name][per * lo:per * lo + h.shape[0]].copy_to_device(h)
-            up += h.nbytes
-
-        for d in range(dim):
-            put("p" + _VEC[d], r.pos[:, d])
-            put("vm" + _VEC[d], r.vel_m1[:, d])
-        v4 = np.zeros((m, 4), dv.dtype)
-        v4[:, :dim] = r.vel
-        v4[:, 3] = r.rho
-        put("vel4", v4.reshape(-1), per=4)
-        put("rhom", r.rho_m1)
-        put("kind", r.kind)
-        put("id", r.id)
+        # packed as k_pack_leaving packs them: one copy from the pinned staging buffer,
+        # one launch writes the rows n .. n+m-1
+        lay, nb = _row_layout(dv, m)
+        hb = dv.host_buf(nb)
+        h = _split(hb, lay)
+        h["pos"].reshape(m, dim)[:] = r.pos
+        F = h["f"].reshape(m, dim + 5)
+        F[:, :dim] = r.vel_m1
+        F[:, dim:dim + 3] = 0           # vel4 records: (vx, vy, vz, rho), vz = 0 in 2D
+        F[:, dim:2 * dim] = r.vel
+        F[:, dim + 3] = r.rho
+        F[:, dim + 4] = r.rho_m1
+        h["kind"][:] = r.kind
+        h["id"][:] = r.id
+        dbuf = dv.dev_buf("xfer", nb)
+        dbuf.copy_to_device(hb)
+        d = _split(dbuf, lay)
+        self._k(state).k_unpack_rows[CK.blocks(m), CK.BLOCK](
+            n, m, dim, d["pos"], d["f"], d["kind"], d["id"], A["px"], A["py"], A["pz"], A["vmx"], A["vmy"],
+            A["vmz"], A["vel4"], A["rhom"], A["kind"], A["id"])
+        up = nb
         dv.n = n + m
         dv.nf += int(np.count_nonzero(r.kind == 0))
         if dv.box is not None:      # the next grid must hold the new rows
@@ -454,27 +498,35 @@ class NumbaCUDA(ComputeBackend):
             thr = domain.hi - domain.reach
             c = max(int(np.floor((thr - g["origin"][2]) * g["inv"])) - 1, 0)
             idx = [c * plane, ncells, ncells + c * plane, 2 * ncells]
-        st = dv.start
-        se = [int(st[i:i + 1].copy_to_host()[0]) for i in idx]
-        dim = dv.dim
+        k = self._k(state)
+        A, dim = dv.arrays, dv.dim
+        if "pick4" not in A:
+            A["pick4"] = cuda.device_array(4, np.int32)
+        k.k_pick4[1, 1](A["start"], *idx, A["pick4"])      # the 4 range ends: one copy
+        A["pick4"].copy_to_host(dv.pinned_i4)
+        a0, b0, a1, b1 = (int(x) for x in dv.pinned_i4)
+        m0, m1 = max(b0 - a0, 0), max(b1 - a1, 0)
+        m = m0 + m1
         pos, vel, rho, kind = [], [], [], []
-        down = 0
-        for a, b in ((se[0], se[1]), (se[2], se[3])):
-            if b <= a:
-                continue
-            P = np.empty((b - a, dim), np.float64)
-            for d in range(dim):
-                P[:, d] = dv.arrays["p" + _VEC[d]][a:b].copy_to_host()
-            v4 = dv.arrays["vel4"][4 * a:4 * b].copy_to_host().reshape(-1, 4)
-            kd = dv.arrays["kind"][a:b].copy_to_host()
-            down += P.nbytes + v4.nbytes + kd.nbytes
+        nb = 0
+        if m:   # both ranges packed by one launch, one copy to the pinned staging buffer
+            lay, nb = _layout([("pos", np.float64, m * dim), ("v4", dv.dtype, 4 * m), ("kind", np.int8, m)])
+            dbuf = dv.dev_buf("xfer", nb)
+            d = _split(dbuf, lay)
+            k.k_pack_edge[CK.blocks(m), CK.BLOCK](A["px"], A["py"], A["pz"], A["vel4"], A["kind"], a0, m0, a1, m,
+                                                   dim, d["pos"], d["v4"], d["kind"])
+            hb = dv.host_buf(nb)
+            dbuf.copy_to_host(hb)
+            h = _split(hb, lay)
+            P = h["pos"].reshape(m, dim)
+            v4 = h["v4"].reshape(m, 4)
             x = P[:, domain.axis]
             sel = x < thr if direction < 0 else x >= thr
-            pos.append(P[sel])
+            pos.append(P[sel])            # boolean indexing copies: nothing aliases the staging buffer
             vel.append(v4[sel, :dim])
             rho.append(v4[sel, 3])
-            kind.append(kd[sel])
-        _count(state, "d2h_bytes", "edge", down + 16)
+            kind.append(h["kind"][sel])
+        _count(state, "d2h_bytes", "edge", nb + 16)
         p = state.particles
         if pos:
             h = Halo(pos=np.concatenate(pos).astype(p.pos.dtype, copy=False),
@@ -607,7 +659,9 @@ class NumbaCUDA(ComputeBackend):
                                              bool(with_press), A["pos4"])
 
     def prepare_halo(self, state, halo) -> None:
-        """Halo rows to the device, sorted by cell (host-staged; phase 2 sorts on the device)."""
+        """Halo rows to the device, sorted by cell on the host (sphgraph.cells.build_grid):
+        every field packed in the pinned staging buffer, one copy into a reusable device
+        buffer (`_halo_buffer`) whose typed views are the halo's device arrays."""
         from sphgraph.cells import build_grid
         dv = state.extra["dev"]
         dt = dv.dtype
@@ -620,28 +674,48 @@ class NumbaCUDA(ComputeBackend):
         grid, perm = build_grid(np.asarray(halo.pos, np.float64), c.cell_size, reach, state.axes)
         halo.pos, halo.vel = halo.pos[perm], halo.vel[perm]
         halo.rho, halo.kind = halo.rho[perm], halo.kind[perm]
-        d = {}
-        up = 0
-        for i in range(3):
-            ax = _VEC[i]
-            if i < dv.dim:
-                d["r" + ax] = np.ascontiguousarray(halo.pos[:, i] - dv.ref[i], dt)
-                d["v" + ax] = np.ascontiguousarray(halo.vel[:, i], dt)
-            else:
-                d["r" + ax] = np.zeros(1, dt)
-                d["v" + ax] = np.zeros(1, dt)
-        d["rho"] = np.ascontiguousarray(halo.rho, dt)
-        d["kind"] = np.ascontiguousarray(halo.kind, np.int8)
-        d["start"] = grid.start
-        dd = {}
-        for key, v in d.items():
-            dd[key] = cuda.to_device(v)
-            up += v.nbytes
-        dd["press"] = cuda.device_array(halo.n, dt)
-        self._k(state).k_pressure[CK.blocks(halo.n), CK.BLOCK](dd["rho"], halo.n, dv.prm_d(state), dd["press"])
+        m, dim = halo.n, dv.dim
+        names = ["r" + ax for ax in _VEC[:dim]] + ["v" + ax for ax in _VEC[:dim]] + ["rho"]
+        lay, nb = _layout([("start", grid.start.dtype, grid.start.shape[0]), ("kind", np.int8, m)] +
+                          [(key, dt, m) for key in names])
+        hb = dv.host_buf(nb)
+        h = _split(hb, lay)
+        h["start"][:] = grid.start
+        for i in range(dim):
+            h["r" + _VEC[i]][:] = halo.pos[:, i] - dv.ref[i]
+            h["v" + _VEC[i]][:] = halo.vel[:, i]
+        h["rho"][:] = halo.rho
+        h["kind"][:] = halo.kind
+        poff = -(-nb // 8) * 8                   # the pressures (computed on the device) after the upload
+        buf = self._halo_buffer(state, dv, halo, poff + m * dt.itemsize)
+        buf[:nb].copy_to_device(hb)
+        dd = _split(buf, lay)
+        dd["press"] = buf[poff:poff + m * dt.itemsize].view(dt)
+        for ax in _VEC[dim:]:                    # 2D: one-element dummies (never read)
+            dd["r" + ax] = dd["v" + ax] = dv.arrays["az"]
+        self._k(state).k_pressure[CK.blocks(m), CK.BLOCK](dd["rho"], m, dv.prm_d(state), dd["press"])
         halo.press = dd
         halo.cells = grid
-        _count(state, "h2d_bytes", "halo", up)
+        _count(state, "h2d_bytes", "halo", nb)
+
+    def _halo_buffer(self, state, dv, halo, nbytes):
+        """A device buffer of >= nbytes for `halo`, from a pool: a buffer is reused once its
+        last halo is neither in state.halos nor the one prepared just before (received
+        but not yet stored), so a halo's device arrays live as long as any task can read
+        it; with two neighbours the pool settles at three buffers."""
+        live = [h for h in state.halos.values() if h is not None] + [dv.halo_last]
+        free = [e for e in dv.halo_pool if not any(e["owner"] is h for h in live)]
+        fit = [e for e in free if e["buf"].shape[0] >= nbytes]
+        if fit:
+            e = fit[0]
+        elif free:
+            e = free[0]
+            e["buf"] = cuda.device_array(int(nbytes * 1.25) + 4096, np.uint8)
+        else:
+            e = {"buf": cuda.device_array(int(nbytes * 1.25) + 4096, np.uint8)}
+            dv.halo_pool.append(e)
+        e["owner"] = dv.halo_last = halo
+        return e["buf"][:nbytes]
 
     # -- forces ------------------------------------------------------------------------
     def forces(self, state, part: str) -> None:
@@ -669,8 +743,8 @@ class NumbaCUDA(ComputeBackend):
             dv.parts = {}
         else:
             buf = dv.parts.get(part)
-            if buf is None or buf["ar"].shape[0] != max(n, 1):
-                m = max(n, 1)
+            if buf is None or buf["ar"].shape[0] < max(n, 1):   # sized by the row capacity: kept while rows come and go
+                m = max(n, dv.cap, 1)
                 buf = {"x": cuda.device_array(m, dv.dtype), "y": cuda.device_array(m, dv.dtype),
                        "z": cuda.device_array(m if dim == 3 else 1, dv.dtype),
                        "ar": cuda.device_array(m, dv.dtype), "ddt": cuda.device_array(m, dv.dtype),
