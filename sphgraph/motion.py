@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 
+from .errors import InputError
 from .particles import MOVING
 
 TYPES = ("rectilinear", "rotation", "piston", "flap", "gate")
@@ -73,7 +74,8 @@ def validate(c, raw, dim: int, names, source_depth=None) -> list:
         if t in ("rectilinear", "rotation"):
             times = e.get("times")
             if (not isinstance(times, list) or not times
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in times)
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                               for x in times)
                     or any(b < a for a, b in zip(times, times[1:]))):
                 raise c.error(f"{key}.times", "a non-empty list of non-decreasing times [s]", times)
             n["times"] = [float(x) for x in times]
@@ -178,7 +180,8 @@ class Body:
     """One moving body: ``state(t)`` -> ("translate", disp, vel) or ("rotate", center, axis, angle, rate)."""
 
     def __init__(self, entry: dict, dim: int, ref_pos: np.ndarray, default_depth: float, g: float,
-                 swl: float | None = None):
+                 swl: float | None = None, where: str = "motion"):
+        """``where``: the entry's place in error messages ("scene.toml: motion[0]")."""
         from . import waves
         self.entry = entry
         self.dim = dim
@@ -194,9 +197,17 @@ class Body:
             d = float(entry.get("depth", default_depth))
             self.depth = d
             H, T = entry["height"], entry["period"]
+            if not g > 0:
+                raise InputError(f"{where}.type: expected a wavemaker in a scene with vertical gravity "
+                                 f"(w^2 = g k tanh(kd)), got {t!r} with g = {g}")
             self.omega = 2.0 * math.pi / T
             self.k = waves.wavenumber(T, d, g)
-            ratio = waves.piston_ratio(self.k * d) if t == "piston" else waves.flap_ratio(self.k * d)
+            kd = self.k * d
+            ratio = 0.0 if not 0.0 < kd < math.inf else (
+                waves.piston_ratio(kd) if t == "piston" else waves.flap_ratio(kd))
+            if not (math.isfinite(self.omega) and ratio > 0 and math.isfinite(H / ratio)):
+                raise InputError(f"{where}.period: expected a period and depth giving a finite wave "
+                                 f"(w^2 = g k tanh(kd), kd = {kd:.3g}), got period {T!r} in depth {d!r} m")
             self.stroke = H / ratio
             self.dir = _AXES.index(entry["direction"])
             if t == "flap":
@@ -207,8 +218,9 @@ class Body:
                     self.center[dim - 1] = ref_pos[:, dim - 1].min()
                 # the hinge's depth below the still-water level (d for a hinge on the bottom)
                 self.arm = d if swl is None else float(swl - self.center[dim - 1])
-                if self.arm <= 0:
-                    raise ValueError(f"motion: flap {self.name!r}: hinge above the still-water level")
+                if not self.arm > 0:
+                    raise InputError(f"{where}.hinge: expected a hinge below the still-water level "
+                                     f"{swl:.6g} m, got {list(self.center)}")
                 self.theta = math.atan(0.5 * self.stroke / self.arm)
                 # rotation that moves the top towards +direction
                 if dim == 2:
@@ -300,10 +312,11 @@ class Motion:
         lat = scene._lattice_def()
         bodies, ids, body_of, refs = [], [], [], []
         g = abs(float(scene.physics.gravity[scene.dim - 1]))
-        for e in entries:
+        for i, e in enumerate(entries):
             rows = np.nonzero(masks[e["body"]])[0]
             ref = lat.positions(bidx[rows])
-            bodies.append(Body(e, scene.dim, ref, scene.hswl, g, scene.surface_level()))
+            bodies.append(Body(e, scene.dim, ref, scene.hswl, g, scene.surface_level(),
+                               where=f"{scene.source}: motion[{i}]"))
             ids.append(rows.astype(np.int64))
             body_of.append(np.full(len(rows), len(bodies) - 1, np.int32))
             refs.append(ref)

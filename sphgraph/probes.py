@@ -28,6 +28,8 @@ series with `OutputWriter.write_group` at the end (and at each output frame).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .config import K_WENDLAND, KERNELS, P_AW, P_BW
@@ -62,10 +64,14 @@ def _err(source, key, form, value):
     return InputError(f"{source}: {key}: expected {form}, got {value!r}")
 
 
+def _real(x) -> bool:
+    """A finite TOML number (int or float, not bool): `nan`/`inf` pass `x < 0` checks, so test it."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
 def _vec(source, key, v, n):
-    if (not isinstance(v, list) or len(v) != n
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-        raise _err(source, key, f"a list of {n} numbers", v)
+    if not isinstance(v, list) or len(v) != n or not all(_real(x) for x in v):
+        raise _err(source, key, f"a list of {n} finite numbers", v)
     return np.array(v, float)
 
 
@@ -100,8 +106,8 @@ def parse(scene) -> dict:
         if bad:
             raise _err(src, table, f"keys {', '.join(allowed)}", sorted(bad))
         iv = t.get("interval", 0.0)
-        if not isinstance(iv, (int, float)) or isinstance(iv, bool) or iv < 0:
-            raise _err(src, f"{table}.interval", "a number >= 0 [s] (0 = every step)", iv)
+        if not _real(iv) or iv < 0:
+            raise _err(src, f"{table}.interval", "a finite number >= 0 [s] (0 = every step)", iv)
         if table == "probes":
             out["interval"] = float(iv)
             for i, e in enumerate(_named(src, "probes.points", t.get("points", []), ("position",))):
@@ -181,9 +187,16 @@ class ProbeSampler:
 
     @staticmethod
     def _advance(nxt, interval, t):
+        """The first mark nxt + k interval after t. Many marks passed in one step (an interval
+        far below dt, down to 5e-324) are skipped at once: a loop over them would not end."""
         if interval <= 0:
             return t + 1e-300
+        k = (t + 1e-12 - nxt) / interval
+        if k > 64:
+            nxt = nxt + (math.floor(k) - 1) * interval if math.isfinite(k) else t + 1e-12
         while nxt <= t + 1e-12:
+            if nxt + interval == nxt:   # below the time's resolution: every step
+                return math.nextafter(t + 1e-12, math.inf)
             nxt += interval
         return nxt
 

@@ -315,8 +315,8 @@ class Scene:
             raise c.error("dp", "a spacing giving at most 2**50 lattice points from domain.origin "
                           "to the domain's corners", dp)
         periodic = dom.get("periodic", [])
-        if (not isinstance(periodic, list) or len(set(periodic)) != len(periodic)
-                or not all(a in AXES[:dim] for a in periodic)):
+        if (not isinstance(periodic, list) or not all(isinstance(a, str) and a in AXES[:dim] for a in periodic)
+                or len(set(periodic)) != len(periodic)):   # set() after the type check: [[]] is unhashable
             raise c.error("domain.periodic", "a list of distinct axes among "
                           + ", ".join(f'"{a}"' for a in AXES[:dim]), periodic)
         exclude = c.boolean("domain.exclude_outside", dom.get("exclude_outside", False))
@@ -380,6 +380,7 @@ class Scene:
         entries = [("boundary", i, e) for i, e in enumerate(self.boundary)]
         entries += [("fluid", i, e) for i, e in enumerate(self.fluid) if e["type"] in shapes.SHAPE_TYPES]
         for group, i, e in entries:
+            self._check_window(c, group, i, e)
             if e["type"] in shapes.SHAPE_TYPES:
                 bb = self._shape(group, i).bounds(lat)
                 if geo.box_count(bb) == 0:
@@ -407,6 +408,23 @@ class Scene:
             raise c.error("limits.max_particles",
                           f"an estimated particle count <= {self.max_particles} "
                           "(increase dp or raise limits.max_particles)", estimate)
+
+    def _check_window(self, c: _Checker, group: str, i: int, e: dict) -> None:
+        """An entry reaching beyond 2**50 spacings from the origin (where the domain ends,
+        see the dp check) is outside the domain: say so before int64 lattice indices wrap."""
+        if e["type"] in shapes.SHAPE_TYPES:
+            with np.errstate(all="ignore"):
+                lo, hi = self._shape(group, i).extent(self.dp)
+        else:   # walls and tank layers reach at most `layers` spacings beyond min/max
+            pad = min(int(e.get("layers", 1)), 2 ** 60) * self.dp
+            lo = np.minimum(e["min"], e["max"]) - pad
+            hi = np.maximum(e["min"], e["max"]) + pad
+        with np.errstate(all="ignore"):
+            off = np.abs(np.concatenate([lo, hi]) - np.concatenate([self.lattice_origin] * 2))
+        if not np.all(off <= 2.0 ** 50 * self.dp):      # nan too
+            raise c.error(f"{group}[{i}]", f"particles inside the domain {_vlist(self.domain_min)}"
+                          f" - {_vlist(self.domain_max)} (extend [domain])",
+                          f"an entry spanning {_vlist(lo)} - {_vlist(hi)}", literal=True)
 
     def estimated_particles(self) -> int:
         """Upper estimate of the particle count from index boxes (no allocation)."""

@@ -135,6 +135,12 @@ def _validate_slope(c, key, e, dim, out) -> None:
             out["width"] = c.number(f"{key}.width", _req(c, key, e, "width", "a number > 0 [m]"), gt=0)
         elif "width" in e:
             raise c.error(f"{key}.width", "no width key in 2D", e["width"])
+    with np.errstate(all="ignore"):   # the fill's own arithmetic: a run lost next to start is no slope
+        sl = Slope(out, dim)
+    if not (np.isfinite(sl.slope) and sl.cos > 0 and np.all(np.isfinite(sl.e))):
+        k = "end" if "end" in e else "length"
+        raise c.error(f"{key}.{k}", f"a {k} giving a finite slope from start {out['start']} "
+                      f"(a rise over a run along {out['axis']} that float64 resolves)", e[k])
 
 
 def _req(c, key, e, name, form):
@@ -235,14 +241,16 @@ class Cylinder:
             shell |= (t < thick - tol) | (self.L - t <= thick + tol)
         return m & shell
 
-    def bounds(self, lat) -> geo.Box:
+    def extent(self, dp) -> tuple:
+        """(lo, hi) coordinates [m] holding every particle of the shape."""
         if self.dim == 2:
-            lo, hi = self.c - self.R, self.c + self.R
-        else:
-            ends = np.stack([self.c, self.c + self.L * self.a])
-            ext = self.R * np.sqrt(np.maximum(1.0 - self.a ** 2, 0.0))
-            lo, hi = ends.min(0) - ext, ends.max(0) + ext
-        return lat.inner_range(lo, hi)
+            return self.c - self.R, self.c + self.R
+        ends = np.stack([self.c, self.c + self.L * self.a])
+        ext = self.R * np.sqrt(np.maximum(1.0 - self.a ** 2, 0.0))
+        return ends.min(0) - ext, ends.max(0) + ext
+
+    def bounds(self, lat) -> geo.Box:
+        return lat.inner_range(*self.extent(lat.dp))
 
     def points(self, lat) -> np.ndarray:
         return _scan(lat, self.bounds(lat), lambda x: self._keep(x, lat.dp))
@@ -327,12 +335,14 @@ class Slope:
             m &= (x[:, w] >= self.lo[w] - tol) & (x[:, w] <= self.hi[w] + tol)
         return m
 
-    def bounds(self, lat) -> geo.Box:
-        dp = lat.dp
+    def extent(self, dp) -> tuple:
         lo, hi = self.lo.copy(), self.hi.copy()
         lo[self.v] -= (self.layers + 1) * dp / self.cos
         hi[self.v] += dp / self.cos
-        return lat.inner_range(lo, hi)
+        return lo, hi
+
+    def bounds(self, lat) -> geo.Box:
+        return lat.inner_range(*self.extent(lat.dp))
 
     def points(self, lat) -> np.ndarray:
         dp = lat.dp
@@ -379,9 +389,12 @@ class Mesh:
         self.layers = int(e.get("layers", 0))
         self._memo = None
 
-    def bounds(self, lat) -> geo.Box:
+    def extent(self, dp) -> tuple:
         v = self.tris.reshape(-1, 3)
-        return lat.inner_range(v.min(0), v.max(0))
+        return v.min(0), v.max(0)
+
+    def bounds(self, lat) -> geo.Box:
+        return lat.inner_range(*self.extent(lat.dp))
 
     def _mask(self, lat):
         """(index box, dense inside mask over it), computed once per lattice."""

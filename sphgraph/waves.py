@@ -30,7 +30,10 @@ from .particles import FLUID
 
 def wavenumber(period: float, depth: float, g: float = 9.81) -> float:
     """k [1/m] of w^2 = g k tanh(k d) (Newton iterations from the deep-water guess)."""
-    w2 = (2.0 * math.pi / period) ** 2
+    w = 2.0 * math.pi / period
+    w2 = w * w          # inf, not OverflowError, for a tiny period
+    if not 0.0 < w2 < math.inf:   # a period float64 cannot make a wave of: no wave number
+        return math.nan
     k = max(w2 / g, math.sqrt(w2 / (g * depth)))
     for _ in range(100):
         th = math.tanh(k * depth)
@@ -56,11 +59,17 @@ def group_velocity(period: float, depth: float, g: float = 9.81) -> float:
 
 def piston_ratio(kd: float) -> float:
     """H/S of a piston wavemaker (Dean & Dalrymple eq. 6.16)."""
+    if kd > 20.0:   # deep water: the same ratio times 2 exp(-2kd) / 2 exp(-2kd) (cosh would overflow)
+        e = math.exp(-2.0 * kd)
+        return 2.0 * (1.0 - e) ** 2 / (1.0 - e * e + 4.0 * kd * e)
     return 2.0 * (math.cosh(2 * kd) - 1.0) / (math.sinh(2 * kd) + 2 * kd)
 
 
 def flap_ratio(kd: float) -> float:
     """H/S of a bottom-hinged flap wavemaker (Dean & Dalrymple eq. 6.17)."""
+    if kd > 20.0:   # deep water: numerator and denominator over sinh(kd) cosh(kd) (no overflow)
+        sh, ch = math.sinh(min(kd, 700.0)), math.cosh(min(kd, 700.0))
+        return 4.0 / kd * (kd * math.tanh(kd) - 1.0 + 1.0 / ch) / (2.0 + 2.0 * kd / (sh * ch))
     return (4.0 * math.sinh(kd) / kd * (kd * math.sinh(kd) - math.cosh(kd) + 1.0)
             / (math.sinh(2 * kd) + 2 * kd))
 
