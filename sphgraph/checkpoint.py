@@ -12,7 +12,11 @@ A checkpoint is the whole solver state, enough to continue a run bit-identically
   scene text, ``schedule``, ``precision``, ``backend``, ``comm``, ``ranks``,
   ``axis``, ``integrator``, the load balancer's state (JSON) and
   ``sha256``: a checksum over every array (dtype, shape, bytes) and every
-  other attribute, verified on load.
+  other attribute, verified on load;
+* with ``[domain] exclude_outside``: ``/exclusions`` (``step``, ``time``, ``id``,
+  ``cause``), every exclusion recorded up to the checkpoint's step, gathered from
+  all ranks, so that a restart after a SIGKILL (which leaves no ``/exclusions`` in
+  ``output.h5``) still ends with the complete table.
 
 Writing is collective (every rank's rows are gathered to the root, which
 writes) and atomic: a temporary file, fsync, ``os.replace``, fsync of the
@@ -44,6 +48,7 @@ CKPT_DIR = "checkpoints"
 KEEP = 2
 FORMAT = 1
 FIELDS = ("id", "kind", "pos", "vel", "rho", "vel_m1", "rho_m1")
+EXCLUSION_FIELDS = ("step", "time", "id", "cause")   # /exclusions (sphgraph.features.Features.exclusions)
 _NAME = re.compile(r"^ckpt_(\d+)\.h5$")
 _EVERY_FORM = "N (steps, an integer >= 1) or Ts (simulated seconds, e.g. 0.05s)"
 
@@ -94,7 +99,7 @@ def _canon(v):
     return v
 
 
-def _digest(meta: dict, blocks: list[dict], cuts: np.ndarray | None) -> str:
+def _digest(meta: dict, blocks: list[dict], cuts: np.ndarray | None, exclusions: dict | None = None) -> str:
     h = hashlib.sha256()
     h.update(json.dumps({k: meta[k] for k in sorted(meta) if k != "sha256"}, sort_keys=True).encode())
     for r, b in enumerate(blocks):
@@ -104,6 +109,11 @@ def _digest(meta: dict, blocks: list[dict], cuts: np.ndarray | None) -> str:
             h.update(a.tobytes())
     if cuts is not None:
         h.update(np.ascontiguousarray(cuts, np.float64).tobytes())
+    if exclusions is not None:   # absent from checkpoints without exclude_outside: their sums are unchanged
+        for name in EXCLUSION_FIELDS:
+            a = np.ascontiguousarray(exclusions[name])
+            h.update(f"exclusions/{name}:{a.dtype.str}:{a.shape}".encode())
+            h.update(a.tobytes())
     return h.hexdigest()
 
 
@@ -127,10 +137,11 @@ def list_checkpoints(out_dir) -> list[tuple[int, str]]:
     return sorted(out)
 
 
-def write(path: str, meta: dict, blocks: list[dict], cuts, fsync: bool = True) -> str:
+def write(path: str, meta: dict, blocks: list[dict], cuts, fsync: bool = True,
+          exclusions: dict | None = None) -> str:
     """Write one checkpoint file atomically (temp file, fsync, rename)."""
     meta = {k: _canon(v) for k, v in meta.items()}
-    meta["sha256"] = _digest(meta, blocks, cuts)
+    meta["sha256"] = _digest(meta, blocks, cuts, exclusions)
     d = os.path.dirname(path)
     os.makedirs(d, exist_ok=True)
     tmp = os.path.join(d, "." + os.path.basename(path) + ".tmp")
@@ -143,6 +154,10 @@ def write(path: str, meta: dict, blocks: list[dict], cuts, fsync: bool = True) -
                 g.create_dataset(name, data=np.ascontiguousarray(b[name]))
         if cuts is not None:
             f.create_dataset("cuts", data=np.asarray(cuts, np.float64))
+        if exclusions is not None:
+            g = f.create_group("exclusions")
+            for name in EXCLUSION_FIELDS:
+                g.create_dataset(name, data=np.ascontiguousarray(exclusions[name]))
     _commit(tmp, path, fsync)
     return path
 
@@ -153,6 +168,7 @@ class Checkpoint:
     meta: dict
     blocks: list            # Particles per rank, in stored row order
     cuts: np.ndarray | None
+    exclusions: dict | None = None   # /exclusions columns up to `step` (exclude_outside scenes)
 
     @property
     def step(self) -> int:
@@ -172,14 +188,16 @@ def load(path) -> Checkpoint:
             n = int(meta["ranks"])
             raw = [{name: f[f"rank_{r:04d}/{name}"][()] for name in FIELDS} for r in range(n)]
             cuts = f["cuts"][()] if "cuts" in f else None
+            exclusions = ({name: f[f"exclusions/{name}"][()] for name in EXCLUSION_FIELDS}
+                          if "exclusions" in f else None)
     except (OSError, KeyError, ValueError) as e:
         raise InputError(f"{path}: checkpoint: expected a complete sphgraph checkpoint, "
                          f"got an unreadable file ({type(e).__name__}: {e})") from None
-    if meta.get("sha256") != _digest(meta, raw, cuts):
+    if meta.get("sha256") != _digest(meta, raw, cuts, exclusions):
         raise InputError(f"{path}: checkpoint: expected checksum {meta.get('sha256')}, "
                          "got different data (damaged file)")
     blocks = [Particles(**{k: np.ascontiguousarray(b[k]) for k in FIELDS}) for b in raw]
-    return Checkpoint(path, meta, blocks, cuts)
+    return Checkpoint(path, meta, blocks, cuts, exclusions)
 
 
 def find_latest(out_dir, warn=True) -> Checkpoint:
@@ -261,6 +279,8 @@ def save(sim, out_dir, *, next_out: float, frames: int, last_saved: int, next_ch
          fsync: bool = True) -> str | None:
     """Collective: write ``ckpt_<step>.h5`` (root) and keep the newest `KEEP`. Returns its path."""
     blocks = gather_state(sim)
+    # every exclusion so far (a gather under MPI: on every rank, like gather_state)
+    exclusions = sim.features.exclusions(sim) if sim.features.exclude_outside else None
     path = ckpt_path(out_dir, sim.step_count)
     if blocks is not None:
         root_ctx = next(c for c in sim.contexts if c.rank == 0)
@@ -274,7 +294,7 @@ def save(sim, out_dir, *, next_out: float, frames: int, last_saved: int, next_ch
                 "axis": -1 if sim.axis is None else int(sim.axis), "integrator": sim.integrator,
                 "dim": int(sim.dim), "n_total": int(sim.n_total), "balancer": _balancer_state(sim),
                 "written_unix": time.time()}
-        write(path, meta, blocks, cuts, fsync=fsync)
+        write(path, meta, blocks, cuts, fsync=fsync, exclusions=exclusions)
         prune(out_dir, keep=KEEP)
     barrier = getattr(sim.comm, "barrier", None)
     if barrier is not None and len(sim.comm.local_ranks) < sim.nranks:
@@ -330,6 +350,9 @@ def restore(sim, ckpt: Checkpoint) -> None:
         c.state.step = sim.step_count
         c.state.dt = float(ckpt.meta["dt"])
     _restore_balancer(sim, ckpt.meta.get("balancer", "{}"), int(ckpt.meta["ranks"]) == sim.nranks)
+    if ckpt.exclusions is not None and sim.features.exclude_outside:
+        sim.features.restore_exclusions(ckpt.exclusions, sim.step_count,
+                                        root=any(c.rank == 0 for c in sim.contexts))
 
 
 def blocks_for(ckpt: Checkpoint, dtype) -> list[Particles]:

@@ -28,6 +28,8 @@ class Features:
         self.shifting = None
         self.exclude_outside = bool(scene.exclude_outside)
         self.excluded = []          # (step, time, id, cause) rows of this process's ranks
+        self.restored = None        # a checkpoint's rows (every rank's, on the root), see restore_exclusions
+        self.restored_step = -1
         self.stages = 1 if scene.physics.integrator == "verlet" else 2
 
     @property
@@ -118,9 +120,20 @@ class Features:
             st.particles = p.take(np.nonzero(cause == 0)[0])
             sim.compute.prepare(st)
 
+    def restore_exclusions(self, cols: dict, step: int, root: bool) -> None:
+        """A restart: the checkpoint's exclusions (every rank's, up to its `step`) are the
+        record up to that step -- kept by the root process; rows in :attr:`excluded` at or
+        before `step` (the solver may add them from ``output.h5``'s ``/exclusions``) are
+        then the same ones and left out of :meth:`exclusions`."""
+        self.restored_step = int(step)
+        self.restored = [(int(a), float(b), int(c), int(e)) for a, b, c, e in
+                         zip(cols["step"], cols["time"], cols["id"], cols["cause"])] if root else []
+
     def exclusions(self, sim) -> dict | None:
         """Every rank's exclusions gathered (root), sorted by (step, id); None elsewhere."""
         rows = self.excluded
+        if self.restored is not None:
+            rows = self.restored + [r for r in rows if r[0] > self.restored_step]
         if hasattr(sim.comm, "gather") and len(sim.comm.local_ranks) < sim.nranks:
             parts = sim.comm.gather(rows)
             if parts is None:

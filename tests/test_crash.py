@@ -134,18 +134,20 @@ def test_sigkill_anywhere_leaves_readable_output_and_restartable_checkpoints(tmp
 
 # ------------------------------------------------------------------------------ faults under MPI
 FAULT_DRIVER = r'''
-import sys
+import sys, time
 import numpy as np
 from mpi4py import MPI
 import sphgraph.graph.tasks as T
 from sphgraph.cli import main
-kind, scene, out = sys.argv[1:4]
+kind, scene, out, stamp = sys.argv[1:5]
 rank = MPI.COMM_WORLD.rank
 orig = T.run_integrate
 
 def faulty(ctx, task):
     orig(ctx, task)
     if ctx.rank == 1 and ctx.state.step == 3:
+        with open(stamp, "w") as f:                # when the fault hits (start-up and compilation are over)
+            f.write(repr(time.time()))
         if kind == "exception":
             raise RuntimeError("injected fault")
         ctx.state.particles.vel[0, 0] = np.nan     # numerical: found by the check on rank 1
@@ -179,11 +181,17 @@ def test_fault_on_one_rank_stops_all_ranks(tmp_path, kind, code, text):
     drv.write_text(FAULT_DRIVER)
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     t0 = time.time()
-    r = subprocess.run([exe, "-n", "3", sys.executable, str(drv), kind, str(scene), str(tmp_path / "o")],
-                       capture_output=True, text=True, env=env, timeout=120)
-    took = time.time() - t0
+    stamp = tmp_path / "fault_time"
+    r = subprocess.run([exe, "-n", "3", sys.executable, str(drv), kind, str(scene), str(tmp_path / "o"),
+                        str(stamp)], capture_output=True, text=True, env=env, timeout=120)
+    t_end = time.time()       # mpiexec has returned: every rank has stopped
+    took = t_end - t0
     assert r.returncode != 0 if code is None else r.returncode == code, (r.returncode, r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if text in ln]
     assert len(lines) == 1, r.stderr          # printed once, naming the rank and the step
     assert "rank 1" in lines[0] and ("step 4" in lines[0] or "step 3" in lines[0]), lines[0]
     assert took < 60, took
+    # issue 8 §3: every rank stops within 10 s of the fault (measured from the injection, after start-up)
+    assert stamp.exists(), f"the fault was never injected: {r.stderr}"
+    since_fault = t_end - float(stamp.read_text())
+    assert 0 <= since_fault < 10, (since_fault, took)

@@ -155,3 +155,51 @@ def test_without_exclusion_a_density_out_of_bounds_is_fatal():
     set_density(sim, int(np.nonzero(sim.scene.build_particles().kind == 0)[0][-1]), 1060.0)
     with pytest.raises(NumericalError, match="step 1 .*density outside"):
         sim.step()
+
+
+KILLED_RUN = r'''
+import os, signal, sys
+import sphgraph.graph.tasks as T
+from sphgraph.cli import main
+scene, out = sys.argv[1:3]
+orig = T.run_integrate
+
+def killed_in_step_250(ctx, task):   # after the checkpoint at 240 and the exclusion at 243
+    orig(ctx, task)
+    if ctx.state.step + 1 == 250:
+        os.kill(os.getpid(), signal.SIGKILL)
+T.run_integrate = killed_in_step_250
+sys.exit(main(["run", scene, "--out", out, "--quiet", "--max-steps", "260", "--checkpoint-every", "240"]))
+'''
+
+
+def test_exclusions_survive_a_sigkill_through_the_checkpoint(tmp_path):
+    """A SIGKILL leaves no /exclusions in output.h5; the checkpoint holds the rows recorded
+    before it (step 238), so the restarted run's table equals the uninterrupted run's, bit for bit."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from sphgraph import InputError, run
+    from sphgraph import checkpoint as ck
+    from sphgraph.io import read_group
+    run(spill(), out=tmp_path / "ref", max_steps=260, progress=False)
+    ref = read_group(tmp_path / "ref", "exclusions")
+    assert ref["step"].min() < 240 < ref["step"].max(), ref["step"]   # rows before and after the checkpoint
+    scene, drv = tmp_path / "spill.toml", tmp_path / "drv.py"
+    scene.write_text(spill().text)
+    drv.write_text(KILLED_RUN)
+    r = subprocess.run([sys.executable, str(drv), str(scene), str(tmp_path / "o")], capture_output=True,
+                       text=True, timeout=120, env=dict(os.environ, NUMBA_NUM_THREADS="1"))
+    assert r.returncode == -signal.SIGKILL, (r.returncode, r.stderr)
+    with pytest.raises(InputError):
+        read_group(tmp_path / "o", "exclusions")            # not written: the process was killed
+    c = ck.find_latest(tmp_path / "o")
+    assert c.step == 240
+    run(str(scene), restart=tmp_path / "o", max_steps=260, progress=False)
+    got = read_group(tmp_path / "o", "exclusions")
+    for k in ("step", "time", "id", "cause"):
+        assert got[k].dtype == ref[k].dtype and np.array_equal(got[k], ref[k]), (k, got[k], ref[k])
+    assert got["attrs"]["count"] == len(ref["id"])
+    assert np.array_equal(c.exclusions["id"], ref["id"][ref["step"] <= 240])   # from the checkpoint
