@@ -247,6 +247,12 @@ def _balancer_state(sim) -> str:
                        "records": rec, "check_s": b.check_s, "apply_s": b.apply_s})
 
 
+def _sampler_state(sim) -> str:
+    """/probes and /forces samples so far (root's `ProbeSampler`, set by `run`), or "{}"."""
+    sampler = getattr(sim, "probe_sampler", None)
+    return "{}" if sampler is None else sampler.state_json()
+
+
 def _restore_balancer(sim, text: str, same_ranks: bool) -> None:
     d = json.loads(text or "{}")
     if not d:
@@ -293,6 +299,7 @@ def save(sim, out_dir, *, next_out: float, frames: int, last_saved: int, next_ch
                 "comm": sim.comm.name, "ranks": int(sim.nranks),
                 "axis": -1 if sim.axis is None else int(sim.axis), "integrator": sim.integrator,
                 "dim": int(sim.dim), "n_total": int(sim.n_total), "balancer": _balancer_state(sim),
+                "probes": _sampler_state(sim),
                 "written_unix": time.time()}
         write(path, meta, blocks, cuts, fsync=fsync, exclusions=exclusions)
         prune(out_dir, keep=KEEP)
@@ -350,6 +357,10 @@ def restore(sim, ckpt: Checkpoint) -> None:
         c.state.step = sim.step_count
         c.state.dt = float(ckpt.meta["dt"])
     _restore_balancer(sim, ckpt.meta.get("balancer", "{}"), int(ckpt.meta["ranks"]) == sim.nranks)
+    sampler = getattr(sim, "probe_sampler", None)
+    text = ckpt.meta.get("probes", "{}")
+    if sampler is not None and text not in (None, "", "{}"):
+        sampler.restore_json(text)
     if ckpt.exclusions is not None and sim.features.exclude_outside:
         sim.features.restore_exclusions(ckpt.exclusions, sim.step_count,
                                         root=any(c.rank == 0 for c in sim.contexts))

@@ -28,6 +28,7 @@ series with `OutputWriter.write_group` at the end (and at each output frame).
 """
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -160,9 +161,17 @@ class ProbeSampler:
             return
         if arrays is None:
             arrays = sim.frame_arrays()
-        if arrays is None:   # not the root rank under MPI
+        if arrays is None:   # not the root rank under MPI: its marks advance as the root's do,
+            self._advance_marks(sim.time)   # so every rank joins the same gathers
             return
         self.sample_arrays(sim.time, sim.step_count, arrays)
+
+    def _advance_marks(self, t) -> None:
+        s = self.spec
+        if (s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12:
+            self.next["probes"] = self._advance(self.next["probes"], s["interval"], t)
+        if s["bodies"] and t >= self.next["forces"] - 1e-12:
+            self.next["forces"] = self._advance(self.next["forces"], s["force_interval"], t)
 
     def sample_arrays(self, t, step, a) -> None:
         s = self.spec
@@ -175,7 +184,6 @@ class ProbeSampler:
             for name, x in s["heights"]:
                 row[name] = self.height(x, pos, rho)
             self.rows["probes"].append(row)
-            self.next["probes"] = self._advance(self.next["probes"], s["interval"], t)
         if s["bodies"] and t >= self.next["forces"] - 1e-12:
             row = {"time": t, "step": step}
             bd = ~fl
@@ -183,7 +191,7 @@ class ProbeSampler:
                 row[name] = self.force(lo, hi, a["position"][bd], a["density"][bd], a["pressure"][bd],
                                        pos, rho, p)
             self.rows["forces"].append(row)
-            self.next["forces"] = self._advance(self.next["forces"], s["force_interval"], t)
+        self._advance_marks(t)
 
     @staticmethod
     def _advance(nxt, interval, t):
@@ -288,6 +296,23 @@ class ProbeSampler:
                     return t, np.array([r[name][field] for r in rows])
                 return t, np.array([r[name] for r in rows])
         raise KeyError(name)
+
+    # -- checkpoint state: the samples so far and the next sampling marks, as JSON text
+    #    (floats round-trip exactly through json), so a restart continues the series
+    def state_json(self) -> str:
+        def plain(v):
+            if isinstance(v, dict):
+                return {k: plain(x) for k, x in v.items()}
+            if isinstance(v, (np.ndarray, list, tuple)):
+                return [plain(x) for x in v]
+            return v.item() if isinstance(v, np.generic) else v
+        return json.dumps({"rows": plain(self.rows), "next": self.next, "last_time": self._last_time})
+
+    def restore_json(self, text: str) -> None:
+        d = json.loads(text)
+        self.rows = {k: list(v) for k, v in d["rows"].items()}
+        self.next = {k: float(v) for k, v in d["next"].items()}
+        self._last_time = d.get("last_time", self._last_time)
 
     def write(self, writer) -> None:
         for group, (tree, attrs) in self.datasets().items():

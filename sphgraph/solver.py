@@ -303,6 +303,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     t_end = scene.end_time
     from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
     sampler = ProbeSampler(scene) if write_output and ("probes" in scene.extra or "forces" in scene.extra) else None
+    sim.probe_sampler = sampler   # its samples go into checkpoints (ck.save) and come back on restart
     if saved is not None:
         ck.check_scene(saved, scene)
         ck.restore(sim, saved)
