@@ -88,15 +88,13 @@ def forces(dpos, dvel, drho, dpress, dkind,
                 for c1 in range(lo1, hi1 + 1):
                     row = (c2 * nm + c1) * nf
                     for j in range(start[row + lo0], start[row + hi0 + 1]):
-                        b_bound = skind[j] != 0
-                        if b_bound and not a_fluid:
-                            continue       # boundary-boundary pairs do nothing (DBC)
                         drx = xa - spos[j, 0]
                         dry = ya - spos[j, 1]
                         drz = (za - spos[j, 2]) if dim == 3 else 0.0
                         r2 = drx * drx + dry * dry + drz * drz
                         if r2 > support2 or r2 < 1e-18:
                             continue
+                        b_bound = skind[j] != 0
                         dvx = vxa - svel[j, 0]
                         dvy = vya - svel[j, 1]
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
@@ -110,10 +108,12 @@ def forces(dpos, dvel, drho, dpress, dkind,
                             arr += fr
                             dd += fd
                             cc |= fc
-                        else:
+                        elif not b_bound:
                             fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
                                                 mf, prm, kernel)
                             arr += fr
+                        else:
+                            continue
                         if fv > vmax:
                             vmax = fv
         ace[i, 0] = axx
