@@ -158,7 +158,9 @@ def main(argv=None):
             if policy == "time":
                 _, force = step_time(shape_for(prof, cuts, reach, k, 3), n, speed)
                 s_new = cur / np.maximum(force, 1e-300)
-                sp = s_new if sp is None else s_new   # smoothing 1.0 (the default)
+                s_new = s_new / s_new.sum()
+                # as the balancer: shares averaged over the checks with weight cfg.smoothing
+                sp = s_new if sp is None else cfg.smoothing * s_new + (1 - cfg.smoothing) * sp / sp.sum()
             targets = target_loads(cfg, cur.sum(), sp if sp is not None else np.ones(n), [np.inf] * n)
             new_cuts = solve_cuts(edges, hist, cuts, targets, reach, min_width)
             before = imbalance_vs(cur, targets)

@@ -311,7 +311,7 @@ class Scene:
             raise c.error("domain.max", f"every coordinate > domain.min {_vlist(dmin)}", dom["max"])
         origin = c.vector("domain.origin", dom.get("origin", _vlist(dmin)), dim)
         # lattice indices are int64 and exact in float64: at most 2**50 spacings from the origin
-        if max(np.abs(dmax - origin).max(), np.abs(dmin - origin).max()) / dp > 2.0 ** 50:
+        if max(np.abs(dmax - origin).max(), np.abs(dmin - origin).max()) > 2.0 ** 50 * dp:
             raise c.error("dp", "a spacing giving at most 2**50 lattice points from domain.origin "
                           "to the domain's corners", dp)
         periodic = dom.get("periodic", [])
