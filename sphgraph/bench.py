@@ -7,7 +7,8 @@ from . import __version__
 
 
 def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", ranks=1,
-          schedule="production", precision=None, dp=None, comm_options=None) -> dict | None:
+          schedule="production", precision=None, dp=None, comm_options=None,
+          balance=None) -> dict | None:
     """Run `warmup` untimed steps (compilation), then `steps` timed ones; no output files.
 
     Interactions are counted as DualSPHysics does: pairs within 2h, from each
@@ -20,7 +21,8 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
         raise InputError(f"--steps/--warmup: expected steps >= 1 and warmup >= 0, got {steps}, {warmup}")
     t0 = time.perf_counter()
     sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
-                     precision=precision, dp=dp, end_time=None, comm_options=comm_options)
+                     precision=precision, dp=dp, end_time=None, comm_options=comm_options,
+                     balance=balance)
     setup_s = time.perf_counter() - t0
     # the first step compiles (or loads cached) kernels: its time is compile_s; the rest
     # of the warm-up is untimed

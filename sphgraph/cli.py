@@ -251,17 +251,9 @@ def _is_root(res):
 
 def cmd_bench(args) -> int:
     from .bench import bench
-    from .scene import Scene
-    flags = {k: v for k, v in _balance_flags(args).items() if v is not None}
-    scene = args.scene
-    if flags:   # bench takes no balance argument: the flags go on top of the scene's [balance]
-        scene = Scene.from_toml(args.scene)
-        table = scene.extra.get("balance", {})
-        if isinstance(table, dict):   # anything else: refused by BalanceConfig.resolve, naming the scene
-            scene.extra = {**scene.extra, "balance": {**table, **flags}}
-    out = bench(scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
+    out = bench(args.scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
                 ranks=args.ranks, schedule=args.schedule, precision=args.precision, dp=args.dp,
-                comm_options=_comm_options(args))
+                comm_options=_comm_options(args), balance=_balance_flags(args))
     if out is not None:
         print(json.dumps(out))
     return 0

@@ -152,9 +152,9 @@ def _parent(d, path):
     return d
 
 
-@st.composite
-def mutated_scenes(draw):
-    d = copy.deepcopy(BASE)
+def _mutate(draw, d, keys, values):
+    """1-3 random edits of scene dict `d` in place: replace, delete, add a key from `keys`,
+    or scale a number; new values drawn from the strategy `values`."""
     for _ in range(draw(st.integers(1, 3))):
         paths = _paths(d)
         if not paths:
@@ -165,13 +165,18 @@ def mutated_scenes(draw):
         if op == "delete":
             del parent[path[-1]]
         elif op == "add" and isinstance(parent, dict):
-            parent[draw(st.sampled_from(["extra", "Ωmega", "limits", "physics", "periodic", "κ"]))] = draw(GARBAGE)
+            parent[draw(st.sampled_from(keys))] = draw(values)
         elif op == "scale" and isinstance(parent[path[-1]], (int, float)) \
                 and not isinstance(parent[path[-1]], bool):
             parent[path[-1]] = parent[path[-1]] * draw(st.sampled_from([1e-9, 1e-4, -1, 0, 1e4, 1e12]))
         else:
-            parent[path[-1]] = draw(GARBAGE)
+            parent[path[-1]] = draw(values)
     return d
+
+
+@st.composite
+def mutated_scenes(draw):
+    return _mutate(draw, copy.deepcopy(BASE), ["extra", "Ωmega", "limits", "physics", "periodic", "κ"], GARBAGE)
 
 
 def toml_text(d) -> str | None:
@@ -281,23 +286,7 @@ FEATURE_VALUES = st.one_of(
 @st.composite
 def mutated_feature_scenes(draw):
     d = copy.deepcopy(FEATURE_BASES[draw(st.sampled_from(sorted(FEATURE_BASES)))])
-    for _ in range(draw(st.integers(1, 3))):
-        paths = _paths(d)
-        if not paths:
-            break
-        path = draw(st.sampled_from(paths))
-        parent = _parent(d, path)
-        op = draw(st.sampled_from(["replace", "replace", "delete", "add", "scale"]))
-        if op == "delete":
-            del parent[path[-1]]
-        elif op == "add" and isinstance(parent, dict):
-            parent[draw(st.sampled_from(FEATURE_KEYS))] = draw(FEATURE_VALUES)
-        elif op == "scale" and isinstance(parent[path[-1]], (int, float)) \
-                and not isinstance(parent[path[-1]], bool):
-            parent[path[-1]] = parent[path[-1]] * draw(st.sampled_from([1e-9, 1e-4, -1, 0, 1e4, 1e12]))
-        else:
-            parent[path[-1]] = draw(FEATURE_VALUES)
-    return d
+    return _mutate(draw, d, FEATURE_KEYS, FEATURE_VALUES)
 
 
 @pytest.mark.parametrize("name", sorted(FEATURE_BASES))
