@@ -27,6 +27,7 @@ class CellGrid:
     axes: np.ndarray     # int64 [3] particle axis of (fast, mid, slow); -1 for none (2D)
     start: np.ndarray    # int64 [ncells + 1]: cell c holds rows start[c]:start[c+1]
     reach: int
+    hi: np.ndarray = None  # float64 [3]: upper corner of the binned rows' bounding box (permuted)
 
     @property
     def ncells(self) -> int:
@@ -140,14 +141,51 @@ def cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach):
     return lo0, hi0, lo1, hi1, lo2, hi2, empty
 
 
-def build_grid(pos: np.ndarray, cell_size: float, reach: int, axes: np.ndarray):
-    """Grid over `pos`' bounding box; returns (grid, perm) with rows to reorder by perm."""
+def _dims(lo, hi, cell_size, axes):
+    dims = np.maximum(np.floor((hi - lo) / cell_size).astype(np.int64) + 1, 1)
+    dims[axes < 0] = 1
+    return dims
+
+
+def build_grid(pos: np.ndarray, cell_size: float, reach: int, axes: np.ndarray, slow_span=None):
+    """Grid over `pos`' bounding box; returns (grid, perm) with rows to reorder by perm.
+
+    `slow_span` (lo, hi), the slab's cuts along the slow (split) axis: the grid spans at
+    least the finite ones there, so rows that enter the slab later in the step fall in
+    it (recv_displaced merges them, `grid_takes`).
+
+    The key of a row is (slow, mid, fast) cell index read as one mixed-radix number:
+    the order of keys is lexicographic in the cell index (slow axis most significant),
+    whatever the extents. The counting sort is stable: rows of one cell keep their order."""
     lo = np.zeros(3)
     hi = np.zeros(3)
     _bounds(pos, axes, lo, hi)
-    dims = np.maximum(np.floor((hi - lo) / cell_size).astype(np.int64) + 1, 1)
-    dims[axes < 0] = 1
+    if slow_span is not None and axes[2] >= 0 and pos.shape[0]:
+        a, b = float(slow_span[0]), float(slow_span[1])
+        if np.isfinite(a):
+            lo[2] = min(lo[2], a)
+        if np.isfinite(b):
+            hi[2] = max(hi[2], b)
+    dims = _dims(lo, hi, cell_size, axes)
     keys = np.empty(pos.shape[0], np.int64)
     cell_keys(pos, lo, 1.0 / cell_size, dims, axes, keys)
     perm, start = counting_sort(keys, int(dims.prod()))
-    return CellGrid(origin=lo, size=cell_size, dims=dims, axes=axes, start=start, reach=reach), perm
+    return CellGrid(origin=lo, size=cell_size, dims=dims, axes=axes, start=start, reach=reach, hi=hi), perm
+
+
+def grid_takes(grid: CellGrid, pos: np.ndarray):
+    """Whether `build_grid` over the grid's rows plus the rows at `pos` would give this very
+    grid (same origin, same dims: every row keeps its cell and key), and the bounding box's
+    upper corner with them. False when the grid holds no rows or its bounds are unknown."""
+    if grid.hi is None or int(grid.start[-1]) == 0:
+        return False, None
+    if pos.shape[0] == 0:
+        return True, grid.hi
+    lo = np.zeros(3)
+    hi = np.zeros(3)
+    _bounds(pos, grid.axes, lo, hi)
+    used = grid.axes >= 0
+    if np.any(lo[used] < grid.origin[used]):
+        return False, None
+    hi = np.where(used, np.maximum(grid.hi, hi), 0.0)
+    return bool(np.array_equal(_dims(grid.origin, hi, grid.size, grid.axes), grid.dims)), hi

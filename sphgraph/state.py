@@ -87,6 +87,10 @@ class RankState:
     cut_lo: float = -np.inf
     cut_hi: float = np.inf
     bytes_sent: int = 0
+    # build_cells of this step already ran (recv_displaced then merges the arrivals into
+    # the sorted rows): the step it ran in, None once send_displaced changed the rows
+    cells_step: int | None = None
+    sort_perm: np.ndarray = None                    # that build's order: sorted row i = row sort_perm[i]
     extra: dict = field(default_factory=dict)      # data of user-defined tasks
 
     def __post_init__(self):

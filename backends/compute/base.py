@@ -32,6 +32,18 @@ class ComputeBackend:
     def build_cells(self, state) -> None:
         raise NotImplementedError
 
+    def merge_displaced(self, state, domain, rows) -> None:
+        """Rows that arrived (recv_displaced) after this step's build_cells already sorted
+        the owned rows. Default, for a backend without a merge: append them and build the
+        cells again (correct, a whole build). numba-cpu merges them into the sorted rows."""
+        if any(r is not None and r.n for r in rows):
+            sync = getattr(self, "sync_host", None)    # a device backend: host rows current first
+            if sync is not None:
+                sync(state)
+            domain.add_rows(state, rows)
+            self.prepare(state)
+            self.build_cells(state)
+
     def forces(self, state, part: str) -> None:
         raise NotImplementedError
 

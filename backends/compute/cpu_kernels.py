@@ -304,6 +304,42 @@ def gather_rows2(src, perm, dst):
 
 
 @njit(parallel=True, cache=True)
+def merge_sorted(start, akeys, perm, new_start):
+    """Merge m arrivals with cell keys `akeys` into n rows already sorted by cell (cell c
+    holds rows start[c]:start[c+1]).
+
+    Fills perm [n + m] (new row i = old row perm[i] of [rows, arrivals]: arrival j is n + j)
+    and new_start [ncells + 1]. The arrivals are stable-sorted by key (counting sort), and
+    each goes after every row whose key is equal or smaller (searchsorted side="right",
+    which for the sorted rows is start[key + 1]): a row of cell c moves down by the
+    arrivals of smaller keys. This is the order a stable sort of [rows, arrivals] by key
+    gives, ties to the rows, so merging equals sorting the rows and arrivals together."""
+    ncells = start.shape[0] - 1
+    n = start[ncells]
+    m = akeys.shape[0]
+    before = np.zeros(ncells + 1, np.int64)      # arrivals with a key < c
+    for j in range(m):
+        before[akeys[j] + 1] += 1
+    for c in range(ncells):
+        before[c + 1] += before[c]
+    fill = before[:-1].copy()
+    order = np.empty(m, np.int64)                # arrivals in stable key order
+    for j in range(m):
+        k = akeys[j]
+        order[fill[k]] = j
+        fill[k] += 1
+    for c in prange(ncells + 1):
+        new_start[c] = start[c] + before[c]
+    for c in prange(ncells):
+        sh = before[c]
+        for i in range(start[c], start[c + 1]):
+            perm[i + sh] = i
+    for r in range(m):
+        j = order[r]
+        perm[start[akeys[j] + 1] + r] = n + j
+
+
+@njit(parallel=True, cache=True)
 def count_pairs(dpos, dkind, spos, skind, start, origin, inv_size, dims, axes, reach, support2, counts):
     """Pairs within 2h of each destination, counted as DualSPHysics counts interactions:
     from each side, every neighbour of a fluid row, only fluid neighbours of a boundary

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sphgraph.cells import build_grid
+from sphgraph.cells import build_grid, cell_keys, grid_takes
 from sphgraph.config import P_RHO0
 from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
@@ -49,23 +49,78 @@ class NumbaCPU(ComputeBackend):
                 "density": p.rho, "pressure": press}
 
     # -- cells -------------------------------------------------------------------------
-    def _grid(self, state, pos):
+    def _grid(self, state, pos, slow_span=None):
         c = state.consts
         reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
-        return build_grid(pos, c.cell_size, reach, state.axes)
+        return build_grid(pos, c.cell_size, reach, state.axes, slow_span)
 
     def build_cells(self, state) -> None:
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         p = state.particles
-        grid, perm = self._grid(state, p.pos)
+        # owned rows: the grid spans the slab along the split axis (the slow one), so rows
+        # arriving from the neighbours after this build fall in it (merge_displaced)
+        span = (state.cut_lo, state.cut_hi) if state.axes[2] == state.axis and state.nranks > 1 else None
+        grid, perm = self._grid(state, p.pos, span)
         for name, arr in p.arrays().items():
             out = np.empty_like(arr)
             (K.gather_rows2 if arr.ndim == 2 else K.gather_rows)(arr, perm, out)
             setattr(p, name, out)
         state.cells = grid
+        state.sort_perm = perm
         if state.press is None or state.press.shape[0] != p.n:
             self.prepare(state)
         K.pressure_into(p.rho, state.prm, state.press)
+
+    def merge_displaced(self, state, domain, rows) -> None:
+        """recv_displaced after this step's build_cells: the arriving rows are merged into
+        the sorted rows (`cpu_kernels.merge_sorted`), the cell offsets and pressures updated,
+        giving bit for bit what appending them before build_cells gives (the sort is stable
+        and a grid that takes the arrivals is the grid of the rows and arrivals together).
+        An arrival outside the grid would change its origin or extent: the rows go back to
+        their order before the sort, the arrivals are appended and the cells rebuilt."""
+        from sphgraph.domain import Slabs
+        from sphgraph.particles import Particles
+        rows = [r for r in rows if r is not None and r.n]
+        p = state.particles
+        if rows:
+            a = Particles.concat(rows)
+            grid = state.cells
+            ok, hi = grid_takes(grid, a.pos) if type(domain).add_rows is Slabs.add_rows else (False, None)
+            if not ok:
+                self._unsort(state)
+                domain.add_rows(state, rows)
+                self.prepare(state)
+                self.build_cells(state)
+                return
+            _threads(p.n + a.n, ROWS_PER_THREAD_LIGHT)
+            n = p.n
+            keys = np.empty(a.n, np.int64)
+            cell_keys(a.pos, grid.origin, 1.0 / grid.size, grid.dims, grid.axes, keys)
+            perm = np.empty(n + a.n, np.int64)
+            start = np.empty_like(grid.start)
+            K.merge_sorted(grid.start, keys, perm, start)
+            for name, arr in p.arrays().items():
+                both = np.concatenate([arr, getattr(a, name)])
+                out = np.empty_like(both)
+                (K.gather_rows2 if both.ndim == 2 else K.gather_rows)(both, perm, out)
+                setattr(p, name, out)
+            grid.start, grid.hi = start, hi
+            # the order relative to [rows before the sort, arrivals]
+            state.sort_perm = np.where(perm < n, state.sort_perm[np.minimum(perm, n - 1)], perm)
+        # as recv_displaced then build_cells leave it: buffers for N rows, pressures
+        self.prepare(state)
+        K.pressure_into(state.particles.rho, state.prm, state.press)
+
+    def _unsort(self, state) -> None:
+        """The rows back in their order before this step's build_cells."""
+        p, perm = state.particles, state.sort_perm
+        _threads(p.n, ROWS_PER_THREAD_LIGHT)
+        inv = np.empty_like(perm)
+        inv[perm] = np.arange(perm.shape[0])
+        for name, arr in p.arrays().items():
+            out = np.empty_like(arr)
+            (K.gather_rows2 if arr.ndim == 2 else K.gather_rows)(arr, inv, out)
+            setattr(p, name, out)
 
     def prepare_halo(self, state, halo) -> None:
         _threads(halo.n, ROWS_PER_THREAD_LIGHT)
