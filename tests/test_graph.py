@@ -28,16 +28,59 @@ def test_one_rank_graph_is_the_serial_step():
 
 def test_middle_rank_graph_has_both_halos_and_commuting_force_tasks():
     forces = ["forces_interior@1", "forces_halo_1@1", "forces_halo_2@1"]
-    want = {("send_displaced", "recv_displaced"), ("recv_displaced", "build_cells"),
-            ("build_cells", "send_edges@1"), ("recv_halo_1@1", "forces_halo_1@1"),
-            ("recv_halo_2@1", "forces_halo_2@1"), ("dt_local", "dt_allreduce"),
-            ("dt_allreduce", "integrate@1"), ("send_edges@1", "integrate@1")}
-    want |= {("build_cells", f) for f in forces} | {(f, "dt_local") for f in forces}
+    pre = ("build_cells", "recv_displaced")       # both accumulate into particles and cells
+    want = {("send_displaced", t) for t in pre} | {(t, "send_edges@1") for t in pre}
+    want |= {("recv_halo_1@1", "forces_halo_1@1"),
+             ("recv_halo_2@1", "forces_halo_2@1"), ("dt_local", "dt_allreduce"),
+             ("dt_allreduce", "integrate@1"), ("send_edges@1", "integrate@1")}
+    want |= {(t, f) for t in pre for f in forces} | {(f, "dt_local") for f in forces}
     assert reduced_edges(1, 3) == want
     g = rank_graph(PROD.canonical(1, 3, 1))
     for a in forces:  # accumulations commute: no order among the force tasks
         for b in forces:
             assert a == b or not nx.has_path(g, a, b)
+    # nor between build_cells and recv_displaced (merged or appended: the same rows)
+    assert not nx.has_path(g, *pre) and not nx.has_path(g, *pre[::-1])
+
+
+def _with_pre(pre):
+    o = [x for x in base_order() if x not in ("send_displaced", "recv_displaced", "build_cells")]
+    return list(pre) + o
+
+
+@pytest.mark.parametrize("ranks", [1, 2, 3, 4])
+@pytest.mark.parametrize("stages", [1, 2])
+def test_validator_accepts_build_cells_and_recv_displaced_in_either_order(ranks, stages):
+    for pre in (("send_displaced", "recv_displaced", "build_cells"),
+                ("send_displaced", "build_cells", "recv_displaced")):
+        Schedule.from_dict({"format": 1, "order": _with_pre(pre)}).validate(ranks, stages)
+        Schedule.from_dict({"format": 1, "order": _with_pre(pre), "halo_order": [2, 1]}).validate(ranks, stages)
+    assert PROD.order.index("build_cells") < PROD.order.index("recv_displaced")   # the paper's overlap
+    bulk = Schedule.load("bulk-synchronous").order
+    assert bulk.index("recv_displaced") < bulk.index("build_cells")              # no overlap
+
+
+def test_validator_still_rejects_what_breaks_the_migration_dependencies():
+    # receiving or building before the rows that left are taken out
+    rejects({"order": _with_pre(("recv_displaced", "send_displaced", "build_cells"))},
+            match="recv_displaced is placed before send_displaced")
+    msg = rejects({"order": _with_pre(("build_cells", "send_displaced", "recv_displaced"))},
+                  match="build_cells is placed before send_displaced")
+    assert "particles: accumulate after write" in msg
+    # a reader of the rows or cells between build_cells and recv_displaced
+    o = _with_pre(("send_displaced", "build_cells", "recv_displaced"))
+    o.remove("send_edges")
+    o.insert(o.index("recv_displaced"), "send_edges")
+    msg = rejects({"order": o}, match="send_edges@1 is placed before recv_displaced")
+    assert "read after accumulate" in msg
+    o = _with_pre(("send_displaced", "build_cells", "recv_displaced"))
+    o.remove("forces_interior")
+    o.insert(o.index("build_cells"), "forces_interior")
+    rejects({"order": o}, match="forces_interior@1 is placed before build_cells")
+    # integrate (a writer of the rows) before either
+    o = _with_pre(("send_displaced", "build_cells"))
+    o.insert(o.index("integrate") + 1, "recv_displaced")
+    rejects({"order": o}, match="integrate@1 is placed before recv_displaced")
 
 
 @pytest.mark.parametrize("rank,nranks,halos", [(0, 1, []), (0, 2, [2]), (1, 2, [1]), (0, 3, [2]), (1, 3, [1, 2]), (2, 3, [1])])

@@ -139,6 +139,41 @@ def test_every_shipped_schedule_bit_identical_on_3_mock_ranks():
             assert np.array_equal(a[k], ref[k]), f"{name}: {k} differs from production"
 
 
+def _pre_order(s: Schedule, pre) -> Schedule:
+    rest = [x for x in s.order if x not in ("send_displaced", "recv_displaced", "build_cells")]
+    return Schedule.from_dict({"format": 1, "order": list(pre) + rest, "lanes": dict(s.lanes)},
+                              name="-".join(pre))
+
+
+@pytest.mark.parametrize("kind,ranks,fallback", [("2d", 2, False), ("2d", 3, True), ("3d", 3, False)],
+                         ids=["2d-2-merge", "2d-3-rebuild", "3d-3-merge"])
+def test_recv_displaced_after_build_cells_is_bit_identical(kind, ranks, fallback, monkeypatch):
+    """Issue 4 §2: the displaced rows received while the cells are built (production: merged
+    into the sorted rows) give the particles, bit for bit, of receiving them before the build
+    -- with the merge, and with every arrival forced through the rebuild path."""
+    from sphgraph.backends.compute import numba_cpu
+    sc = scene(kind)
+    steps = STEPS if kind == "2d" else 60
+    prod = Schedule.load("production")
+    before = _pre_order(prod, ("send_displaced", "recv_displaced", "build_cells"))
+    after = _pre_order(prod, ("send_displaced", "build_cells", "recv_displaced"))
+    _, ref = run_sim(sc, ranks, steps=steps, schedule=before, check_ids=False, push=2.0)
+    calls = {"merged": 0, "rebuilt": 0}
+    takes = numba_cpu.grid_takes
+
+    def spy(grid, pos):
+        ok, hi = (False, None) if fallback else takes(grid, pos)
+        calls["merged" if ok else "rebuilt"] += 1
+        return ok, hi
+    monkeypatch.setattr(numba_cpu, "grid_takes", spy)
+    _, got = run_sim(sc, ranks, steps=steps, schedule=after, check_ids=False, push=2.0)
+    for k in FIELDS:
+        assert np.array_equal(got[k], ref[k]), k
+    assert calls["merged" if not fallback else "rebuilt"] > 0, calls
+    if not fallback:
+        assert calls["rebuilt"] == 0, calls
+
+
 def test_output_under_mock_ranks(tmp_path):
     import sphgraph
     from sphgraph.io import read_frame

@@ -3,6 +3,11 @@
 Data names (what tasks read, write or accumulate):
   particles   the owned rows (positions, velocities, densities, history)
   cells       the owned rows' cell grid and pressures (rebuilt by build_cells)
+              build_cells and recv_displaced both *accumulate* into particles and
+              cells: either order gives bit-identical rows (build first: the arrivals are
+              merged into the sorted rows, seed paper §III-B "during the creation of the
+              neighbour list the processes send and receive the particles that change
+              subdomain"); send_displaced writes before them, every reader comes after both
   halo_1/2    the rows received from the lower / upper neighbour
   forces@s    the force buffer of stage s: every force task *accumulates* into its
               own partial (interior, halo 1, halo 2); readers see the sum in that fixed order
@@ -85,10 +90,10 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
                     fn=run_send_displaced, sends=tuple(Message(o, tag_displaced(d, ring)) for d, o in nb),
                     meta=dirs)
     if kind is K.RECV_DISPLACED:
-        return Task(kind, None, writes=("particles",), lane=lane, fn=run_recv_displaced,
+        return Task(kind, None, accumulates=("particles", "cells"), lane=lane, fn=run_recv_displaced,
                     recvs=tuple(Message(o, tag_displaced(-d, ring)) for d, o in nb))
     if kind is K.BUILD_CELLS:
-        return Task(kind, None, writes=("particles", "cells"), lane=lane, fn=run_build_cells)
+        return Task(kind, None, accumulates=("particles", "cells"), lane=lane, fn=run_build_cells)
     if kind is K.SEND_EDGES:
         return Task(kind, s, reads=("particles", "cells"), writes=(f"edges@{s}",), lane=lane,
                     fn=run_send_edges, sends=tuple(Message(o, tag_edges(s, d)) for d, o in nb), meta=dirs)
@@ -145,6 +150,7 @@ def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False
 def run_send_displaced(ctx, task):
     # a device-resident backend first brings the host rows up to date if any row left
     # the slab (its `take_displaced`); otherwise the host rows are current
+    ctx.state.cells_step = None      # the rows change: any cells built before are stale
     take = getattr(ctx.compute, "take_displaced", None)
     out = take(ctx.state, ctx.domain) if take else ctx.domain.take_displaced(ctx.state)
     for m, d in zip(task.sends, task.meta["dirs"]):
@@ -153,12 +159,21 @@ def run_send_displaced(ctx, task):
 
 def run_recv_displaced(ctx, task):
     rows = [ctx.comm.recv(ctx.rank + m.peer, m.tag) for m in task.recvs]
+    st = ctx.state
+    built = getattr(st, "cells_step", None) is not None and st.cells_step == st.step  # build_cells ran first
     add = getattr(ctx.compute, "add_displaced", None)   # device backends: appended on the device
     if add is not None and _plain_domain(ctx.domain):
-        add(ctx.state, ctx.domain, rows)
+        add(st, ctx.domain, rows)
+        if built and any(r is not None and r.n for r in rows):
+            # no device merge: the appended rows are unsorted, a whole device build sorts
+            # them in (correct; the order of equal-cell rows may differ from build after recv)
+            ctx.compute.build_cells(st)
         return
-    ctx.domain.add_rows(ctx.state, rows)
-    ctx.compute.prepare(ctx.state)
+    if built:
+        ctx.compute.merge_displaced(st, ctx.domain, rows)
+        return
+    ctx.domain.add_rows(st, rows)
+    ctx.compute.prepare(st)
 
 
 def _plain_domain(domain) -> bool:
@@ -168,6 +183,7 @@ def _plain_domain(domain) -> bool:
 
 def run_build_cells(ctx, task):
     ctx.compute.build_cells(ctx.state)
+    ctx.state.cells_step = ctx.state.step
 
 
 def run_send_edges(ctx, task):
