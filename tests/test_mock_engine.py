@@ -208,6 +208,28 @@ def test_predict_api_and_efficiency():
     assert all(0 < v <= 1.05 for v in e.values())
 
 
+@pytest.mark.parametrize("costs", [None, "mpi2"])
+def test_predict_overlaps_displaced_rows_with_build_cells(costs):
+    """production receives the displaced rows after build_cells (their merge is part of
+    recv_displaced's fitted cost), bulk-synchronous before it: in predict mode the receive
+    waits less when the message travels during the build, never more; the fitted 2-rank
+    costs still load and drive both orders."""
+    import os
+    sc = small()
+    if costs == "mpi2":
+        costs = os.path.join(os.path.dirname(example("dambreak2d.toml")), "..", "benchmarks", "costs_mpi2.toml")
+        assert "recv_displaced" in cm.CostModel.load(costs).coeffs
+    prod = cm.predict(sc, 3, "production", steps=4, costs=costs, latency=2e-5)
+    bulk = cm.predict(sc, 3, "bulk-synchronous", steps=4, costs=costs, latency=2e-5)
+    for r in range(3):
+        assert prod.per_rank[r]["recv_displaced"] <= bulk.per_rank[r]["recv_displaced"] + 1e-12
+    assert prod.task_seconds["recv_displaced"] < bulk.task_seconds["recv_displaced"]
+    t = prod.timing.columns()
+    for r in range(3):   # recv_displaced issued after build_cells on every rank
+        names = list(t["task"][(t["rank"] == r) & (t["step"] == 0)])
+        assert names.index("build_cells") < names.index("recv_displaced")
+
+
 def test_predict_large_scene_without_building_it():
     """A 16 M-particle scene on 64 ranks: shape from a coarse build, scaled."""
     sc = Scene.from_toml(example("yeh_petroff.toml"))

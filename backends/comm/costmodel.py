@@ -14,6 +14,12 @@ prediction, so the fitted coefficients absorb its bias.
 Messages: latency + bytes / bandwidth; the dt allreduce costs
 2 * ceil(log2 N) * latency after the last rank arrives.
 
+recv_displaced issued after build_cells (production) also merges the arrivals into the
+sorted rows and cells: that work is part of recv_displaced's fitted cost (its fit on
+2-rank runs measures the task as the schedule runs it), not a term of its own, so the
+same coefficients serve both orders and fitted files load unchanged. What the order
+changes in prediction is the wait: the message travels during build_cells.
+
 `fit_costs` fits (a, b, c) by least squares on measured single-rank runs
 (`sphgraph.run(...).timing`); `predict` runs the real multi-rank programs of a
 schedule through the mock engine with these costs and no kernels.
