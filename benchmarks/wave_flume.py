@@ -24,14 +24,20 @@ from sphgraph.scene import Scene
 
 def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, damping=True,
                 paddle="piston", end_time=4.5, coefsound=10.0, integrator="verlet", coefh=1.2):
-    """A flume scene dict: paddle at x = 0 (2 layers, moving), beach-less end wall,
-    damping over the last 1.2 wavelengths. Returns (dict, wavelength).
+    """A flume scene dict: paddle at x = 0 (2 layers, moving) with the tank's end wall behind
+    its stroke, beach-less far wall, damping over the last 1.2 wavelengths. Returns (dict,
+    wavelength).
 
     coefh 1.2 (h = 1.70 dp): with coefh 1.0 (h = 1.41 dp) the SPH waves are ~9 % longer than
     w^2 = g k tanh(kd) gives (benchmarks/wave_dispersion.py: period of a k-mode 5 % short at
     dp 0.03 and 0.02), so the paddle's volume flux makes a ~9 % lower wave (docs/features.md)."""
     L = waves.wavelength(period, depth)
     length = length or round(3.4 * L / dp) * dp
+    # the tank starts two spacings behind the paddle's back stroke: a fixed end wall at the
+    # paddle would stand in the water's way once S/2 > dp (sphgraph.motion refuses it)
+    kd = 2 * math.pi / L * depth
+    ratio = waves.piston_ratio(kd) if paddle == "piston" else waves.flap_ratio(kd)
+    x0 = -dp * math.ceil(0.5 * height / ratio / dp + 2)
     top = depth + 3 * height + 0.1
     d = {"format": 1, "name": "wave_flume2d", "dim": 2, "dp": dp, "end_time": end_time,
          "output_interval": end_time,
@@ -39,7 +45,7 @@ def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, dampin
          "physics": {"coefsound": coefsound, "integrator": integrator, "hswl": depth, "coefh": coefh},
          "initial": {"hydrostatic": True},
          "fluid": [{"type": "box", "min": [2 * dp, dp], "max": [length - dp, depth]}],
-         "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [length, top], "layers": 2},
+         "boundary": [{"type": "tank", "min": [x0, 0.0], "max": [length, top], "layers": 2},
                       {"type": "wall", "name": "paddle", "min": [0.0, dp], "max": [0.0, top],
                        "layers": 2, "direction": "+"}],
          "motion": [{"body": "paddle", "type": paddle, "height": height, "period": period,

@@ -291,6 +291,31 @@ class Body:
         return p, vel
 
 
+def _check_sweep(body, ref, fixed_pos, dp, where) -> None:
+    """Refuse a piston whose stroke runs through fixed boundary particles.
+
+    A fixed wall inside the stroke (e.g. a tank's end wall at the paddle, which the
+    paddle passes on its back stroke once S/2 exceeds a spacing) stands in the
+    water's way: the water cannot follow the paddle back, the delivered stroke is
+    short and the wave low -- silently, and the more so the finer dp."""
+    a, tol, half = body.dir, 0.25 * dp, 0.5 * body.stroke
+    lo, hi = ref.min(axis=0), ref.max(axis=0)
+    inside = (fixed_pos[:, a] > lo[a] - half - tol) & (fixed_pos[:, a] < hi[a] + half + tol)
+    for b in range(ref.shape[1]):
+        if b != a:
+            # strictly within the paddle's face: a floor or side wall it slides along is fine
+            inside &= (fixed_pos[:, b] > lo[b] + tol) & (fixed_pos[:, b] < hi[b] - tol)
+    n = int(inside.sum())
+    if n:
+        ax = _AXES[a]
+        first = fixed_pos[np.nonzero(inside)[0][0]]
+        raise InputError(
+            f"{where}.body: expected fixed walls out of the stroke of piston {body.name!r} "
+            f"({ax} from {lo[a] - half:.6g} to {hi[a] + half:.6g} m), got {n} fixed boundary "
+            f"particles in it (e.g. at {[round(float(v), 6) for v in first]}); start the tank "
+            f"behind {ax} = {lo[a] - half:.6g} m so the water can follow the paddle back")
+
+
 class Motion:
     """Every moving body of a scene, and the ``motion`` task's work on one rank."""
 
@@ -321,6 +346,12 @@ class Motion:
             body_of.append(np.full(len(rows), len(bodies) - 1, np.int32))
             refs.append(ref)
         ids = np.concatenate(ids)
+        fixed = np.ones(len(bidx), bool)
+        fixed[ids] = False
+        fixed_pos = lat.positions(bidx[fixed])
+        for i, (body, ref) in enumerate(zip(bodies, refs)):
+            if body.type == "piston":
+                _check_sweep(body, ref, fixed_pos, scene.dp, f"{scene.source}: motion[{i}]")
         order = np.argsort(ids, kind="stable")
         return cls(bodies, ids[order], np.concatenate(body_of)[order], np.concatenate(refs)[order])
 
