@@ -4,7 +4,7 @@ Format (documented for users in docs/schedules.md):
 
     format = 1
     description = "..."
-    order = ["send_displaced", "recv_displaced", "build_cells", "send_edges",
+    order = ["send_displaced", "build_cells", "recv_displaced", "send_edges",
              "forces_interior", "recv_halo_1", "forces_halo_1", "recv_halo_2",
              "forces_halo_2", "dt_local", "dt_allreduce", "integrate", "rebalance"]
     halo_order = [1, 2]          # [2, 1] swaps every halo_1 and halo_2 task

@@ -90,6 +90,8 @@ class ComputeBackend:
             n += sum(x.nbytes for x in (b.ace, b.ar, b.ddt, b.cancel, b.visc))
         if state.cells is not None:
             n += state.cells.start.nbytes
+        if getattr(state, "sort_perm", None) is not None:
+            n += state.sort_perm.nbytes
         return n
 
     def particle_capacity(self, state, max_particles_per_rank=None, sharing=1) -> int | None:
