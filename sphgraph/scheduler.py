@@ -4,13 +4,19 @@ Per step, each rank's program (its tasks in schedule order) is handed to the
 comm backend's `execute`, which runs them (in order on one rank, interleaved
 by the discrete-event engine under mock MPI) and reports each task's start
 and end. Nothing else advances the solver: there is no second time loop.
+
+Lanes: a compute backend with `uses_lanes` (numba-cuda: one CUDA stream per lane)
+gets each task's lane and its cross-lane dependencies (`graph.build.lane_edges`)
+through `lane_begin` / `lane_end` around the task body (`LaneStep`). Other
+backends (numba-cpu) run the programs as they are: nothing is wrapped.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .graph.build import lane_edges, rank_graph
 from .graph.kinds import TaskKind
 from .schedule import Schedule
 
@@ -69,6 +75,49 @@ class TaskTimes:
             v.clear()
 
 
+@dataclass(frozen=True)
+class LaneStep:
+    """What a lane-aware backend is told about one task of a rank's program."""
+
+    lane: str
+    waits: tuple = ()          # tasks on other lanes this one depends on (their events)
+    record: bool = False       # a task on another lane depends on this one: record its event
+    first: bool = False        # first task of its lane in the program: wait for the other
+                               # lanes' work of the previous step (step-end events)
+    last: bool = False         # last task of the program: record every lane's step-end event
+
+
+def lane_program(program: list, graph) -> list:
+    """`program` with every body wrapped in the backend's lane hooks (see LaneStep)."""
+    edges = lane_edges(program, graph)
+    waits: dict = {t.name: [] for t in program}
+    producers = set()
+    for u, v in edges:
+        waits[v].append(u)
+        producers.add(u)
+    seen, out = set(), []
+    for i, t in enumerate(program):
+        step = LaneStep(t.lane, tuple(waits[t.name]), t.name in producers, t.lane not in seen,
+                        i == len(program) - 1)
+        seen.add(t.lane)
+        out.append(replace(t, fn=_on_lane(t.fn, step)))
+    return out
+
+
+def _on_lane(fn, step):
+    def run(ctx, task):
+        compute = ctx.compute
+        compute.lane_begin(ctx.state, task, step)
+        try:
+            if fn is not None:
+                fn(ctx, task)
+        finally:
+            compute.lane_end(ctx.state, task, step)
+    run.lane_step = step
+    run.body = fn
+    return run
+
+
 class Scheduler:
     """Runs steps of `schedule` for the ranks a comm backend drives."""
 
@@ -78,11 +127,18 @@ class Scheduler:
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
-        self.programs = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, False, motion, ring)
-                         for c in contexts}
+        lanes = bool(contexts) and getattr(contexts[0].compute, "uses_lanes", False)
+
+        def program(rank, reb):
+            prog = schedule.program(rank, comm.size, stages, user_tasks, reb, motion, ring)
+            if lanes:
+                graph = rank_graph(schedule.canonical(rank, comm.size, stages, user_tasks, reb, motion, ring))
+                prog = lane_program(prog, graph)
+            return prog
+
+        self.programs = {c.rank: program(c.rank, False) for c in contexts}
         # `rebalance` is conditional: a step that checks the balance runs the program with it
-        self.programs_rebalance = {c.rank: schedule.program(c.rank, comm.size, stages, user_tasks, True, motion, ring)
-                                   for c in contexts} if rebalance else self.programs
+        self.programs_rebalance = {c.rank: program(c.rank, True) for c in contexts} if rebalance else self.programs
         self.times = TaskTimes()
         self.t_origin = t_origin
         self.record_times = True

@@ -241,3 +241,64 @@ def test_task_kind_table_is_the_one_source_of_names():
     for s in shipped():
         assert set(Schedule.load(s).order) <= set(labels)
     assert TaskKind.from_label("dt_allreduce").timer == "SynchroDt"
+
+
+def test_lane_edges_are_the_cross_lane_dependencies():
+    """lane_edges: the rank graph's edges between tasks on different lanes, plus the
+    accumulate-order edge build_cells -- recv_displaced (issue order), every producer
+    issued before its consumer; a backend without lanes gets the programs unwrapped."""
+    from sphgraph.graph.build import lane_edges
+    for name in shipped():
+        S = Schedule.load(name)
+        for rank, nranks, stages in ((0, 1, 1), (0, 2, 1), (1, 3, 2)):
+            prog = S.program(rank, nranks, stages)
+            lane = {t.name: t.lane for t in prog}
+            pos = {t.name: i for i, t in enumerate(prog)}
+            g = rank_graph(S.canonical(rank, nranks, stages))
+            edges = lane_edges(prog, g)
+            cross = {(u, v) for u, v in g.edges() if lane[u] != lane[v]}
+            assert cross <= set(edges)
+            extra = set(edges) - cross
+            if nranks > 1:
+                pre = sorted(("build_cells", "recv_displaced"), key=pos.get)
+                assert extra == {tuple(pre)}, (name, extra)
+            else:
+                assert extra == set()
+            assert all(pos[u] < pos[v] and lane[u] != lane[v] for u, v in edges)
+    sim = Simulation(small_dambreak(), comm="mock", ranks=2)    # numba-cpu: no lanes
+    assert not any(hasattr(t.fn, "lane_step") for p in sim.scheduler.programs.values() for t in p)
+
+
+def test_lane_program_calls_the_backend_hooks_around_each_body():
+    """lane_program wraps each body in lane_begin / lane_end with its LaneStep: the lane,
+    the producers on other lanes it waits for, whether it records its event, the first
+    task of each lane (waits for the previous step) and the last (records step-end events)."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from sphgraph.graph.build import lane_edges
+    from sphgraph.scheduler import lane_program
+    S = Schedule.load("production")
+    prog = [replace(t, fn=None) for t in S.program(1, 3, 2)]
+    g = rank_graph(S.canonical(1, 3, 2))
+    wrapped = lane_program(prog, g)
+    assert [t.name for t in wrapped] == [t.name for t in prog]
+    calls = []
+    compute = SimpleNamespace(lane_begin=lambda st, t, s: calls.append(("begin", t.name, s)),
+                              lane_end=lambda st, t, s: calls.append(("end", t.name, s)))
+    ctx = SimpleNamespace(compute=compute, state=None)
+    for t in wrapped:
+        t.fn(ctx, t)
+    assert [(c[0], c[1]) for c in calls] == [(x, t.name) for t in prog for x in ("begin", "end")]
+    steps = {c[1]: c[2] for c in calls}
+    edges = lane_edges(prog, g)
+    assert {(u, v) for v, s in steps.items() for u in s.waits} == set(edges)
+    assert {v for v, s in steps.items() if s.record} == {u for u, _ in edges}
+    assert all(steps[t.name].lane == t.lane for t in prog)
+    assert [v for v, s in steps.items() if s.first] == ["send_displaced", "build_cells"]
+    assert [v for v, s in steps.items() if s.last] == [prog[-1].name]
+    # the overlap: the interior forces wait for no edge send and no halo receive
+    for st in (1, 2):
+        w = steps[f"forces_interior@{st}"].waits
+        assert not any(x.startswith(("send_edges", "recv_halo")) for x in w), w
+        assert f"recv_halo_1@{st}" in steps[f"forces_halo_1@{st}"].waits

@@ -62,6 +62,28 @@ def rank_graph(tasks: list[Task]) -> nx.DiGraph:
     return g
 
 
+def lane_edges(program: list[Task], graph: nx.DiGraph) -> list[tuple[str, str]]:
+    """Cross-lane dependencies of one rank's `program` (its tasks in issue order), as
+    (producer, consumer) task names, consumers in issue order: the edges of `graph`
+    (`rank_graph` of the canonical tasks) whose ends run on different lanes, plus one
+    edge between two tasks on different lanes that accumulate into the same datum, in
+    issue order. Accumulations commute (either order gives the same rows) but they
+    write the same storage, so they must not run at the same time: on a device with one
+    stream per lane (numba-cuda) this order is an event like the others. Tasks on one
+    lane need no edge: a lane runs its tasks in issue order."""
+    pos = {t.name: i for i, t in enumerate(program)}
+    lane = {t.name: t.lane for t in program}
+    out = {(u, v) for u, v in graph.edges() if u in pos and v in pos and lane[u] != lane[v]}
+    for i, a in enumerate(program):
+        for b in program[i + 1:]:
+            if a.lane != b.lane and set(a.accumulates) & set(b.accumulates):
+                out.add((a.name, b.name))
+    bad = [e for e in out if pos[e[0]] > pos[e[1]]]
+    if bad:    # a validated schedule never issues a consumer before its producer
+        raise ValueError(f"lane_edges: consumer issued before its producer: {sorted(bad)}")
+    return sorted(out, key=lambda e: (pos[e[1]], pos[e[0]]))
+
+
 def order_violations(g: nx.DiGraph, order: list[str]) -> list[str]:
     """Dependencies that the issue order `order` breaks, as messages."""
     pos = {name: i for i, name in enumerate(order)}
