@@ -6,6 +6,10 @@ gauges (Goda & Suzuki 1976). The fast test (tests/test_waves.py) runs `flume()` 
 dp = 0.02 for 4.5 s; this script runs the long version:
 
     python benchmarks/wave_flume.py [--dp 0.01] [--end 8] [--type piston|flap] [--no-damping]
+                                    [--visc-alpha A] [--laminar-nu NU] [--order 1|2] [--gauges 0.28 0.5 ...]
+
+"H_err" is the zero up-crossing height (mean crest-to-trough) at one wavelength; "along"
+gives it, and the first-harmonic height 2 a1 ("H1_err"), at every gauge.
 """
 from __future__ import annotations
 
@@ -23,7 +27,8 @@ from sphgraph.scene import Scene
 
 
 def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, damping=True,
-                paddle="piston", end_time=4.5, coefsound=10.0, integrator="verlet", coefh=1.2):
+                paddle="piston", end_time=4.5, coefsound=10.0, integrator="verlet", coefh=1.2,
+                physics=None, order=1):
     """A flume scene dict: paddle at x = 0 (2 layers, moving) with the tank's end wall behind
     its stroke, beach-less far wall, damping over the last 1.2 wavelengths. Returns (dict,
     wavelength).
@@ -50,6 +55,9 @@ def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, dampin
                        "layers": 2, "direction": "+"}],
          "motion": [{"body": "paddle", "type": paddle, "height": height, "period": period,
                      "depth": depth, "ramp": 1.0}]}
+    if order != 1:
+        d["motion"][0]["order"] = order
+    d["physics"].update(physics or {})     # e.g. {"visc_alpha": 0.0, "laminar_nu": 1e-6}
     if damping:
         d["damping"] = [{"axis": "x", "start": length - 1.2 * L, "end": length, "redumax": 10.0}]
     return d, L
@@ -89,22 +97,46 @@ def main(argv=None):
     ap.add_argument("--type", default="piston", choices=("piston", "flap"))
     ap.add_argument("--height", type=float, default=0.08)
     ap.add_argument("--no-damping", action="store_true")
+    ap.add_argument("--visc-alpha", type=float, help="artificial viscosity alpha (default 0.01)")
+    ap.add_argument("--laminar-nu", type=float, help="laminar viscosity [m^2/s] (default off)")
+    ap.add_argument("--order", type=int, default=1, choices=(1, 2), help="piston wavemaker order (2: Madsen 1971)")
+    ap.add_argument("--gauges", type=float, nargs="+", default=[0.28, 0.5, 0.75, 1.0, 1.25],
+                    help="gauge positions in wavelengths from the paddle (1 and 1.25 are always added)")
     args = ap.parse_args(argv)
     H, T = args.height, 1.0
     L = waves.wavelength(T, 0.3)
-    g1 = 1.5 * args.dp + L
+    x_paddle = 1.5 * args.dp
+    fracs = sorted(set(args.gauges) | {1.0, 1.25})
+    gs = [x_paddle + f * L for f in fracs]
+    phys = {k: v for k, v in (("visc_alpha", args.visc_alpha), ("laminar_nu", args.laminar_nu)) if v is not None}
     r = flume(dp=args.dp, end_time=args.end, paddle=args.type, height=H, damping=not args.no_damping,
-              gauges=[g1, g1 + 0.25 * L])
+              gauges=gs, physics=phys, order=args.order)
     cg = waves.group_velocity(T, 0.3)
+    g1, g2 = gs[fracs.index(1.0)], gs[fracs.index(1.25)]
     t_from = L / cg + 2 * T
     st = waves.wave_stats(r["t"], r["eta"][g1], t_from, args.end)
-    refl = reflection(r["t"], r["eta"][g1], r["eta"][g1 + 0.25 * L], 0.25 * L, T, t_from, args.end)
-    out = {"dp": args.dp, "type": args.type, "H_target": H, "T_target": T,
+    refl = reflection(r["t"], r["eta"][g1], r["eta"][g2], 0.25 * L, T, t_from, args.end)
+    along = []
+    for f, g in zip(fracs, gs):   # each gauge from the time the full-height waves reach it
+        t0 = g / cg + 2 * T
+        sg = waves.wave_stats(r["t"], r["eta"][g], t0, args.end)
+        along.append({"at_L": f, "H_err": sg["height"] / H - 1, "heights": sg["heights"],
+                      "H1_err": first_harmonic(r["t"], r["eta"][g], T, t0, args.end) / H - 1})
+    out = {"dp": args.dp, "type": args.type, "H_target": H, "T_target": T, "physics": phys, "order": args.order,
            "H": st["height"], "T": st["period"], "H_err": st["height"] / H - 1, "T_err": st["period"] / T - 1,
-           "reflection": refl, "particles": r["particles"], "steps": r["steps"], "wall_s": r["wall_s"],
-           "window": [t_from, args.end]}
+           "reflection": refl, "along": along, "particles": r["particles"], "steps": r["steps"],
+           "wall_s": r["wall_s"], "window": [t_from, args.end]}
     json.dump(out, sys.stdout, indent=1)
     print()
+
+
+def first_harmonic(t, eta, period, t_from, t_to):
+    """2 a1: twice the least-squares amplitude of eta at the wave frequency over [t_from, t_to]."""
+    s = (t >= t_from) & (t <= t_to) & np.isfinite(eta)
+    w = 2 * math.pi / period
+    A = np.stack([np.cos(w * t[s]), np.sin(w * t[s]), np.ones(s.sum())], axis=1)
+    c = np.linalg.lstsq(A, eta[s], rcond=None)[0]
+    return 2.0 * math.hypot(c[0], c[1])
 
 
 def reflection(t, eta1, eta2, dx, period, t_from, t_to):

@@ -41,7 +41,7 @@ TYPES = ("rectilinear", "rotation", "piston", "flap", "gate")
 _KEYS = {
     "rectilinear": ("body", "type", "times", "velocity"),
     "rotation": ("body", "type", "times", "omega", "center", "axis"),
-    "piston": ("body", "type", "height", "period", "depth", "direction", "ramp", "phase", "start"),
+    "piston": ("body", "type", "height", "period", "depth", "direction", "ramp", "phase", "start", "order"),
     "flap": ("body", "type", "height", "period", "depth", "direction", "ramp", "phase", "start", "hinge"),
     "gate": ("body", "type", "speed", "start", "lift", "direction"),
 }
@@ -108,6 +108,11 @@ def validate(c, raw, dim: int, names, source_depth=None) -> list:
             n["ramp"] = c.number(f"{key}.ramp", e.get("ramp", 1.0), ge=0)
             n["phase"] = c.number(f"{key}.phase", e.get("phase", 0.0))
             n["start"] = c.number(f"{key}.start", e.get("start", 0.0), ge=0)
+            if t == "piston":
+                o = e.get("order", 1)
+                if isinstance(o, bool) or o not in (1, 2):
+                    raise c.error(f"{key}.order", "1 (first-order wavemaker theory) or 2 (Madsen 1971)", o)
+                n["order"] = int(o)
             if t == "flap" and "hinge" in e:
                 n["hinge"] = list(c.vector(f"{key}.hinge", e["hinge"], dim))
         else:  # gate
@@ -209,6 +214,11 @@ class Body:
                 raise InputError(f"{where}.period: expected a period and depth giving a finite wave "
                                  f"(w^2 = g k tanh(kd), kd = {kd:.3g}), got period {T!r} in depth {d!r} m")
             self.stroke = H / ratio
+            # second order (Madsen 1971): X2(t) = a2 sin(2(wt + phase)) cancels the free second
+            # harmonic a sinusoidal paddle sheds next to the wave's bound one
+            self.a2 = 0.0
+            if entry.get("order", 1) == 2:
+                self.a2 = H * H / (32.0 * d) * (3.0 * math.cosh(kd) / math.sinh(kd) ** 3 - 2.0 / ratio)
             self.dir = _AXES.index(entry["direction"])
             if t == "flap":
                 if "hinge" in entry:
@@ -259,6 +269,9 @@ class Body:
             v = np.zeros(self.dim)
             x[self.dir] = 0.5 * self.stroke * s
             v[self.dir] = 0.5 * self.stroke * ds
+            if self.a2 and tt > 0:
+                x[self.dir] += self.a2 * r * math.sin(2.0 * ph)
+                v[self.dir] += self.a2 * (dr * math.sin(2.0 * ph) + 2.0 * r * self.omega * math.cos(2.0 * ph))
             return "translate", x, v
         return "rotate", self.center, self.axis, self.theta * s, self.theta * ds
 

@@ -123,6 +123,30 @@ def test_piston_stroke_and_ramp():
     assert abs(body.displacement(0.25)) < 0.5 * 0.5 * body.stroke                   # within it
 
 
+def test_second_order_piston_adds_madsens_double_frequency_stroke():
+    """order = 2: x(t) = S/2 sin(wt) + a2 sin(2wt) after the ramp, a2 = H^2/(32 d)
+    (3 cosh kd / sinh^3 kd - 2 / (H/S)) (Madsen 1971); velocity its exact derivative."""
+    H, d, T = 0.08, 0.3, 1.0
+    pis = {"body": "paddle", "type": "piston", "height": H, "period": T, "depth": d}
+    one = Simulation(tank_scene(pis)).features.motion.bodies[0]
+    two = Simulation(tank_scene({**pis, "order": 2})).features.motion.bodies[0]
+    kd = wavenumber(T, d) * d
+    a2 = H * H / (32 * d) * (3 * math.cosh(kd) / math.sinh(kd) ** 3 - 2 / piston_ratio(kd))
+    assert one.a2 == 0.0 and two.a2 == pytest.approx(a2, rel=1e-12)
+    assert two.a2 == pytest.approx(-3.596e-4, rel=1e-3)     # this flume: ~1 % of S/2 = 0.0308 m
+    w = 2 * math.pi / T
+    for t in (1.1, 1.37, 2.0, 2.9):                           # after the one-period ramp
+        assert two.displacement(t) == pytest.approx(
+            0.5 * two.stroke * math.sin(w * t) + a2 * math.sin(2 * w * t), abs=1e-12)
+        _, x, v = two.state(t)
+        eps = 1e-6
+        fd = (two.state(t + eps)[1][0] - two.state(t - eps)[1][0]) / (2 * eps)
+        assert v[0] == pytest.approx(fd, rel=1e-6)
+    assert two.state(0.0)[1][0] == 0.0
+    with pytest.raises(InputError, match=r"motion\[0\]\.order: expected 1 .* or 2"):
+        tank_scene({**pis, "order": 3})
+
+
 def test_motion_task_only_when_the_scene_asks():
     sc = tank_scene(RECT)
     sim = Simulation(sc)
