@@ -150,7 +150,8 @@ def build(dtype) -> types.SimpleNamespace:
 
 # ------------------------------------------------------------------------------- backend methods
 class CudaShifting:
-    """Particle shifting on the device (mixed into NumbaCUDA)."""
+    """Particle shifting on the device (mixed into NumbaCUDA; launches and copies on the
+    running task's lane stream, `NumbaCUDA._on` / `_s`)."""
 
     def _shift_bufs(self, dv, part):
         """gx, gy, gz, div, cancel of `part` in dv.arrays, of the rows' capacity (dv.n may
@@ -182,7 +183,7 @@ class CudaShifting:
             origin, inv, dims, axes, reach = gr.origin, 1.0 / gr.size, gr.dims, gr.axes, gr.reach
         out = self._shift_bufs(dv, part)
         if n:
-            build(dv.dtype).k_shift_sums[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
+            self._on(state, build(dv.dtype)).k_shift_sums[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["kind"], n, *src, start, split,
                 float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                 int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
@@ -192,14 +193,14 @@ class CudaShifting:
 
     def shift_displacement(self, state, coefumagn, tfs, coeftfs, maxdist) -> None:
         dv = state.extra["dev"]
-        k = build(dv.dtype)
+        k = self._on(state, build(dv.dtype))
         n, dim = dv.n, dv.dim
         A = dv.A()
         done = state.extra.pop("shift_done", set())
         S = self._shift_bufs(dv, "interior")
         if "interior" not in done:   # no sums this step: no shift
             for a in S:
-                a.copy_to_device(np.zeros(a.shape[0], a.dtype))
+                a.copy_to_device(np.zeros(a.shape[0], a.dtype), stream=self._s(state))
         for part in SHIFT_PARTS[1:]:
             if part in done and n:
                 k.k_shift_add_part[CK.blocks(n), CK.BLOCK](n, dim, *self._shift_bufs(dv, part), *S)
@@ -215,6 +216,7 @@ class CudaShifting:
         if n:
             sx, sy, sz = self._shift_bufs(dv, "interior")[:3]
             A = dv.A()
-            build(dv.dtype).k_shift_move[CK.blocks(n), CK.BLOCK](n, dv.dim, A["px"], A["py"], A["pz"], sx, sy, sz)
+            k = self._on(state, build(dv.dtype))
+            k.k_shift_move[CK.blocks(n), CK.BLOCK](n, dv.dim, A["px"], A["py"], A["pz"], sx, sy, sz)
         dv.host_stale = True
         self._sync()

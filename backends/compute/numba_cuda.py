@@ -12,6 +12,17 @@ domain); velocities, densities, pressures and all force arithmetic are in the ru
 type (float32 by default). The force loop reads float copies of the positions
 relative to a per-rank reference point (the first bounding-box minimum), so a
 float32 pair distance resolves ~6e-8 of the scene's extent, not of |x|.
+
+Lanes (issue 6 §3): each rank gets one CUDA stream per schedule lane (compute, comm,
+copy), created once, and every kernel launch and copy of a task goes on its lane's
+stream (`_k`, `_s`). A cross-lane dependency of the rank's graph (the scheduler's
+`LaneStep`, from `graph.build.lane_edges`) is an event recorded on the producer's
+stream at its end and waited on by the consumer's stream at its start; host-side
+waits (a D2H copy the host must read) synchronise that stream only. Outside tasks
+(set-up, check, frames) the backend works on the legacy default stream, which
+orders itself against every lane stream. `SPHGRAPH_CUDA_STREAMS=0` runs everything
+on the default stream, as before lanes (the same kernels and summation order, so
+the same bits).
 """
 from __future__ import annotations
 
@@ -55,6 +66,8 @@ class DeviceState:
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
         self.halo_last = None                       # the halo prepared last (may not be in state.halos yet)
+        self.host_busy = None                       # event of an async copy still reading pinned_xfer
+        self.busy_ev = None                         # the event object host_busy reuses
         self.host_stale = False
         self.final = True
 
@@ -97,8 +110,13 @@ class DeviceState:
 
     def host_buf(self, nbytes):
         """The first `nbytes` of a reusable page-locked host buffer (uint8; plain numpy in
-        the simulator), grown with spare room when a message outgrows it. Every copy
-        through it is synchronous, and what is read from it is copied out."""
+        the simulator), grown with spare room when a message outgrows it. A copy out of
+        it may still run on a lane stream (`host_busy`, an upload): it is waited for
+        first; a copy into it is waited for by its caller, and what is read from it is
+        copied out."""
+        if self.host_busy is not None:
+            self.host_busy.synchronize()
+            self.host_busy = None
         b = self.pinned_xfer
         if b is None or b.shape[0] < nbytes:
             cap = int(nbytes * 1.5) + 4096
@@ -165,6 +183,82 @@ def _count(state, direction, kind, nbytes):
     by[k] = by.get(k, 0) + int(nbytes)
 
 
+class _OnStream:
+    """A kernel namespace whose launches go on `stream`: `k.name[grid, block](...)` is
+    `kernel[grid, block, stream](...)`."""
+
+    __slots__ = ("ns", "stream")
+
+    def __init__(self, ns, stream):
+        self.ns, self.stream = ns, stream
+
+    def __getattr__(self, name):
+        return _Launch(getattr(self.ns, name), self.stream)
+
+
+class _Launch:
+    __slots__ = ("kern", "stream")
+
+    def __init__(self, kern, stream):
+        self.kern, self.stream = kern, stream
+
+    def __getitem__(self, cfg):
+        return self.kern[cfg[0], cfg[1], self.stream]
+
+
+def _event(timing):
+    """A CUDA event (the simulator's takes no timing flag)."""
+    return cuda.event() if CK.SIMULATOR else cuda.event(timing=timing)
+
+
+def _wait(stream):
+    """The host waits for `stream` only (0, the default stream: copies were synchronous)."""
+    if stream:
+        stream.synchronize()
+
+
+class Lanes:
+    """One rank's lane streams (created once, on first use) and the events between them.
+
+    `events[task]` is recorded on the task's stream at its end when a task on another
+    lane depends on it; `tails[lane]` at the end of the step's last task (the next
+    step's first task of every other lane waits for it). `current` is the running
+    task's stream (None outside tasks: the default stream)."""
+
+    def __init__(self):
+        self.streams: dict = {}
+        self.events: dict = {}
+        self.tails: dict = {}
+        self.current = None
+        self.task = None           # name of the running task (device trace)
+        self.read: list = []       # halo pool entries the running task reads (their read events)
+
+    def stream(self, lane):
+        s = self.streams.get(lane)
+        if s is None:
+            s = self.streams[lane] = cuda.stream()
+        return s
+
+    def event(self, table, key):
+        e = table.get(key)
+        if e is None:
+            e = table[key] = _event(False)
+        return e
+
+
+def _per_thread_default_stream() -> bool:
+    """numba's per-thread default stream does not order itself against other streams:
+    lanes are off then (everything on the default stream)."""
+    v = os.environ.get("NUMBA_CUDA_PER_THREAD_DEFAULT_STREAM")
+    if v is not None:
+        return v not in ("", "0")
+    try:
+        from numba import config
+        return bool(getattr(config, "CUDA_PER_THREAD_DEFAULT_STREAM", 0))
+    except Exception:  # noqa: BLE001
+        return False
+
+
 _SELECTED = []
 
 
@@ -202,6 +296,11 @@ class NumbaCUDA(ComputeBackend):
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
+        # schedule lanes as CUDA streams (the scheduler calls lane_begin / lane_end)
+        self.uses_lanes = os.environ.get("SPHGRAPH_CUDA_STREAMS", "1") != "0" and not _per_thread_default_stream()
+        self.lanes: dict = {}          # rank -> Lanes
+        self.lane_log = None           # a list: every event record / wait appended (tests)
+        self.trace = None              # a list: timing events per task and copy (start_device_trace)
         _select_device()
 
     def device_name(self) -> str:
@@ -212,7 +311,107 @@ class NumbaCUDA(ComputeBackend):
         return f"cuda {name} (cc {d.compute_capability[0]}.{d.compute_capability[1]})"
 
     def _k(self, state):
-        return CK.build(state.dtype)
+        return self._on(state, CK.build(state.dtype))
+
+    # -- lanes: streams and events -------------------------------------------------------
+    def _s(self, state):
+        """The stream of the running task (0: the default stream, outside tasks or lanes off)."""
+        L = self.lanes.get(state.rank)
+        return 0 if L is None or L.current is None else L.current
+
+    def _on(self, state, kernels):
+        s = self._s(state)
+        return kernels if not s else _OnStream(kernels, s)
+
+    def _log(self, state, *entry):
+        if self.lane_log is not None:
+            self.lane_log.append((state.rank, state.step) + entry)
+
+    def lane_begin(self, state, task, step) -> None:
+        """Before a task body: its lane's stream waits for the events of the tasks on other
+        lanes it depends on (and, for the first task of a lane in the step, for the
+        other lanes' previous step); the body's launches and copies then go on it."""
+        L = self.lanes.get(state.rank)
+        if L is None:
+            L = self.lanes[state.rank] = Lanes()
+        if task.collective:
+            cuda.current_context()     # mock MPI runs a collective's bodies in threads of their own
+        s = L.stream(step.lane)
+        if step.first:
+            for lane, ev in L.tails.items():
+                if lane != step.lane:
+                    ev.wait(s)
+                    self._log(state, "wait_tail", task.name, lane)
+        for u in step.waits:
+            ev = L.events.get(u)
+            if ev is not None:
+                ev.wait(s)
+                self._log(state, "wait", task.name, u)
+        L.current, L.task = s, task.name
+        if self.trace is not None:
+            self._mark(state, task.name, step.lane, True)
+
+    def lane_end(self, state, task, step) -> None:
+        """After a task body: its event (when a task on another lane depends on it), the
+        step-end events of every lane (after the step's last task); back to the default stream."""
+        L = self.lanes[state.rank]
+        s = L.current
+        if self.trace is not None:
+            self._mark(state, task.name, step.lane, False)
+        if step.record:
+            L.event(L.events, task.name).record(s)
+            self._log(state, "record", task.name, step.lane)
+        for e in L.read:
+            L.event(e, "read_ev").record(s)
+            self._log(state, "record_buffer", task.name, id(e))
+        L.read.clear()
+        if step.last:
+            for lane, st in L.streams.items():
+                L.event(L.tails, lane).record(st)
+                self._log(state, "record_tail", task.name, lane)
+        L.current = L.task = None
+
+    # -- device trace (timing events; off unless start_device_trace) ---------------------
+    def start_device_trace(self) -> None:
+        """Record timing events from now on: per task on its lane's stream (start: when the
+        stream reaches the task, after its waits; end: after its work) and around the edge
+        and halo copies (`edge_d2h`, `halo_h2d`). Read them with `device_trace`."""
+        cuda.synchronize()
+        t0 = _event(True)
+        t0.record()
+        t0.synchronize()
+        self.trace = []
+        self._trace_t0 = t0
+        self._trace_open = {}
+
+    def _mark(self, state, label, lane, begin, inside=None):
+        ev = _event(True)
+        s = self._s(state) if lane is None else self.lanes[state.rank].stream(lane)
+        ev.record(s)
+        key = (state.rank, label)
+        if begin:
+            self._trace_open[key] = ev
+        else:
+            ev0 = self._trace_open.pop(key, None)
+            if ev0 is not None:
+                self.trace.append((state.rank, state.step, label, lane, inside, ev0, ev))
+
+    def _copy_mark(self, state, label, begin):
+        """Timing events around a copy, on the running task's stream (device trace only)."""
+        if self.trace is not None:
+            L = self.lanes.get(state.rank)
+            lane = next((k for k, v in L.streams.items() if v is L.current), None) if L is not None else None
+            self._mark(state, label, lane, begin, None if L is None else L.task)
+
+    def device_trace(self) -> list:
+        """[{rank, step, task, lane, inside, start, end}] in seconds since start_device_trace,
+        from the device's clock (synchronises the device); `inside`: for a copy, the task that
+        made it (None for a task)."""
+        cuda.synchronize()
+        t0 = self._trace_t0
+        return [{"rank": r, "step": st, "task": lab, "lane": lane, "inside": inside,
+                 "start": t0.elapsed_time(a) / 1e3, "end": t0.elapsed_time(b) / 1e3}
+                for r, st, lab, lane, inside, a, b in (self.trace or [])]
 
     def _sync(self):
         if self.sync_tasks:
@@ -284,6 +483,8 @@ class NumbaCUDA(ComputeBackend):
         if old is not None and "integrator" in old.__dict__:
             dv.__dict__["integrator"] = old.__dict__["integrator"]
         if old is not None:     # staging and halo buffers outlive a re-upload
+            if old.host_busy is not None:
+                old.host_busy.synchronize()
             dv.pinned_xfer, dv.halo_pool, dv.halo_last = old.pinned_xfer, old.halo_pool, old.halo_last
         state.extra["dev"] = dv
         _count(state, "h2d_bytes", "upload", up)
@@ -365,7 +566,9 @@ class NumbaCUDA(ComputeBackend):
         k.k_fill[1, 1](cnt, 1, 0)
         b = CK.blocks(n)
         k.k_mig_keep[b, CK.BLOCK](A["p" + _VEC[domain.axis]], n, float(domain.lo), float(domain.hi), keep, cnt)
-        cnt.copy_to_host(dv.pinned_i4[:1])
+        s = self._s(state)
+        cnt.copy_to_host(dv.pinned_i4[:1], stream=s)
+        _wait(s)
         m = int(dv.pinned_i4[0])
         _count(state, "d2h_bytes", "displaced", 4)
         if m > lim:
@@ -397,7 +600,9 @@ class NumbaCUDA(ComputeBackend):
                                                   A["vmz"], A["vel4"], A["rhom"], A["kind"], A["id"],
                                                   d["pos"], d["f"], d["kind"], d["id"])
         hb = dv.host_buf(nb)
-        dbuf.copy_to_host(hb)
+        s = self._s(state)
+        dbuf.copy_to_host(hb, stream=s)
+        _wait(s)
         _count(state, "d2h_bytes", "displaced", nb)
         h = _split(hb, lay)
         P = h["pos"].reshape(m, dim)
@@ -461,7 +666,9 @@ class NumbaCUDA(ComputeBackend):
         h["kind"][:] = r.kind
         h["id"][:] = r.id
         dbuf = dv.dev_buf("xfer", nb)
-        dbuf.copy_to_device(hb)
+        s = self._s(state)
+        dbuf.copy_to_device(hb, stream=s)
+        self._host_busy(dv, s)
         d = _split(dbuf, lay)
         self._k(state).k_unpack_rows[CK.blocks(m), CK.BLOCK](
             n, m, dim, d["pos"], d["f"], d["kind"], d["id"], A["px"], A["py"], A["pz"], A["vmx"], A["vmy"],
@@ -502,8 +709,11 @@ class NumbaCUDA(ComputeBackend):
         A, dim = dv.arrays, dv.dim
         if "pick4" not in A:
             A["pick4"] = cuda.device_array(4, np.int32)
+        s = self._s(state)
+        self._copy_mark(state, "edge_d2h", True)
         k.k_pick4[1, 1](A["start"], *idx, A["pick4"])      # the 4 range ends: one copy
-        A["pick4"].copy_to_host(dv.pinned_i4)
+        A["pick4"].copy_to_host(dv.pinned_i4, stream=s)
+        _wait(s)
         a0, b0, a1, b1 = (int(x) for x in dv.pinned_i4)
         m0, m1 = max(b0 - a0, 0), max(b1 - a1, 0)
         m = m0 + m1
@@ -516,7 +726,8 @@ class NumbaCUDA(ComputeBackend):
             k.k_pack_edge[CK.blocks(m), CK.BLOCK](A["px"], A["py"], A["pz"], A["vel4"], A["kind"], a0, m0, a1, m,
                                                    dim, d["pos"], d["v4"], d["kind"])
             hb = dv.host_buf(nb)
-            dbuf.copy_to_host(hb)
+            dbuf.copy_to_host(hb, stream=s)
+            _wait(s)
             h = _split(hb, lay)
             P = h["pos"].reshape(m, dim)
             v4 = h["v4"].reshape(m, 4)
@@ -526,6 +737,7 @@ class NumbaCUDA(ComputeBackend):
             vel.append(v4[sel, :dim])
             rho.append(v4[sel, 3])
             kind.append(h["kind"][sel])
+        self._copy_mark(state, "edge_d2h", False)
         _count(state, "d2h_bytes", "edge", nb + 16)
         p = state.particles
         if pos:
@@ -688,21 +900,40 @@ class NumbaCUDA(ComputeBackend):
         h["kind"][:] = halo.kind
         poff = -(-nb // 8) * 8                   # the pressures (computed on the device) after the upload
         buf = self._halo_buffer(state, dv, halo, poff + m * dt.itemsize)
-        buf[:nb].copy_to_device(hb)
+        s = self._s(state)
+        self._copy_mark(state, "halo_h2d", True)
+        buf[:nb].copy_to_device(hb, stream=s)        # a lane stream: asynchronous (pinned)
+        self._host_busy(dv, s)
         dd = _split(buf, lay)
         dd["press"] = buf[poff:poff + m * dt.itemsize].view(dt)
         for ax in _VEC[dim:]:                    # 2D: one-element dummies (never read)
             dd["r" + ax] = dd["v" + ax] = dv.arrays["az"]
         self._k(state).k_pressure[CK.blocks(m), CK.BLOCK](dd["rho"], m, dv.prm_d(state), dd["press"])
+        self._copy_mark(state, "halo_h2d", False)
         halo.press = dd
         halo.cells = grid
         _count(state, "h2d_bytes", "halo", nb)
+
+    @staticmethod
+    def _host_busy(dv, stream):
+        """An upload from the pinned staging buffer was queued on `stream`: the next use of
+        the buffer (host_buf) waits for it (the host does not wait here)."""
+        if stream:
+            if dv.busy_ev is None:
+                dv.busy_ev = _event(False)
+            ev = dv.busy_ev
+            ev.record(stream)
+            dv.host_busy = ev
 
     def _halo_buffer(self, state, dv, halo, nbytes):
         """A device buffer of >= nbytes for `halo`, from a pool: a buffer is reused once its
         last halo is neither in state.halos nor the one prepared just before (received
         but not yet stored), so a halo's device arrays live as long as any task can read
-        it; with two neighbours the pool settles at three buffers."""
+        it; with two neighbours the pool settles at three buffers. With lanes, a reused
+        buffer was last read by a halo force task of an earlier stage, on the compute
+        lane: the task graph orders it before the receive of its own halo side only, so
+        the buffer carries an event recorded at the end of each task that read it
+        (`_read_halo`, lane_end) and the receive that reuses it waits for that event."""
         live = [h for h in state.halos.values() if h is not None] + [dv.halo_last]
         free = [e for e in dv.halo_pool if not any(e["owner"] is h for h in live)]
         fit = [e for e in free if e["buf"].shape[0] >= nbytes]
@@ -714,8 +945,23 @@ class NumbaCUDA(ComputeBackend):
         else:
             e = {"buf": cuda.device_array(int(nbytes * 1.25) + 4096, np.uint8)}
             dv.halo_pool.append(e)
+        ev = e.get("read_ev")
+        s = self._s(state)
+        if ev is not None and s:
+            ev.wait(s)
+            self._log(state, "wait_buffer", "halo", id(e))
         e["owner"] = dv.halo_last = halo
         return e["buf"][:nbytes]
+
+    def _read_halo(self, state, dv, halo):
+        """The running task reads `halo`'s pooled device buffer: lane_end records the
+        buffer's read event after the task (see _halo_buffer)."""
+        L = self.lanes.get(state.rank)
+        if L is None or L.current is None:
+            return
+        e = next((e for e in dv.halo_pool if e["owner"] is halo), None)
+        if e is not None and all(x is not e for x in L.read):
+            L.read.append(e)
 
     # -- forces ------------------------------------------------------------------------
     def forces(self, state, part: str) -> None:
@@ -737,6 +983,7 @@ class NumbaCUDA(ComputeBackend):
             hd = halo.press
             src = (hd["rx"], hd["ry"], hd["rz"], hd["vx"], hd["vy"], hd["vz"], hd["rho"], hd["press"], hd["kind"])
             gr = halo.cells
+            self._read_halo(state, dv, halo)
             start, origin, inv, dims, axes, reach = hd["start"], gr.origin, 1.0 / gr.size, gr.dims, gr.axes, gr.reach
         if final:
             out = (A["ax"], A["ay"], A["az"], A["ar"], A["ar"], A["kind"], A["visc"])
@@ -760,8 +1007,8 @@ class NumbaCUDA(ComputeBackend):
             geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                    int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                    dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
-            kf = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]),
-                                  int(state.opt[O_LAMINAR]))
+            kf = self._on(state, CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
+                                                  int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
             if nf:
                 kf.k_forces_f[CK.blocks(nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
@@ -810,11 +1057,13 @@ class NumbaCUDA(ComputeBackend):
         k = self._k(state)
         A = dv.A()
         zero = np.zeros(3)
-        A["dtout"].copy_to_device(zero)
+        s = self._s(state)
+        A["dtout"].copy_to_device(zero, stream=s)
         if dv.n:
             k.k_dt_terms[min(CK.REDUCE_BLOCKS, CK.blocks(dv.n)), 256](
                 A["ax"], A["ay"], A["az"], A["vx"], A["vy"], A["vz"], A["visc"], A["kind"], dv.n, dv.dim, A["dtout"])
-        A["dtout"].copy_to_host(dv.pinned_dt)
+        A["dtout"].copy_to_host(dv.pinned_dt, stream=s)     # after the compute lane's forces and reduce
+        _wait(s)
         _count(state, "h2d_bytes", "dt", 24)
         _count(state, "d2h_bytes", "dt", 24)
         a2, v2, vm = (float(x) for x in dv.pinned_dt)
