@@ -5,7 +5,7 @@
 # costs only itself. Run from the repository root on the GPU machine, after the
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
-# Stages: tests spheric2 toe yeh large multi
+# Stages: tests spheric2 toe yeh large multi lanes multi-nolanes
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -22,7 +22,7 @@ stage() {  # name, limit seconds, command...
 }
 for s in "$@"; do
   case $s in
-    tests)    stage tests 200 python3 -m pytest -q -m gpu -p no:cacheprovider tests/test_cuda_backend.py \
+    tests)    stage tests 500 python3 -m pytest -q -m gpu -p no:cacheprovider tests/test_cuda_backend.py \
                 tests/test_shifting_cuda.py tests/test_compute_conformance.py ;;
     spheric2) stage spheric2 330 python3 benchmarks/gpu_bench.py --dp 0.01 0.006 0.004 --steps 20 --warmup 3 \
                 --profile-steps 3 --bare --json "$OUT/spheric2.json" ;;
@@ -33,6 +33,13 @@ for s in "$@"; do
                 --profile-steps 1 --json "$OUT/large.json" ;;
     multi)    stage multi 300 python3 benchmarks/gpu_multi.py --dp 0.01 --ranks 2 --steps 20 --warmup 3 \
                 --json "$OUT/multi.json" ;;
+    # lanes as CUDA streams (issue 6 §3): production against bulk-synchronous on 2 mock ranks
+    # sharing the GPU, a stream per lane (1) and the default stream only (0), device trace
+    lanes)    stage lanes 500 python3 benchmarks/gpu_lanes.py --dp 0.01 0.006 --ranks 2 --steps 10 --warmup 3 \
+                --trace-steps 2 --streams 1 0 --json "$OUT/lanes.json" ;;
+    # the multi stage again with every rank on its default stream (before lanes), to compare
+    multi-nolanes) stage multi_nolanes 300 env SPHGRAPH_CUDA_STREAMS=0 python3 benchmarks/gpu_multi.py --dp 0.01 \
+                --ranks 2 --steps 20 --warmup 3 --json "$OUT/multi_nolanes.json" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done
