@@ -2,8 +2,9 @@
 
 Measures the wave height and period at one wavelength from the paddle against the
 target of first-order wavemaker theory, and the reflection coefficient from two
-gauges (Goda & Suzuki 1976). The fast test (tests/test_waves.py) runs `flume()` at
-dp = 0.02 for 4.5 s; this script runs the long version:
+gauges (Goda & Suzuki 1976). tests/test_waves.py runs `flume()` at dp 0.015 to 6.5 s
+(height and period, second-order generation, no artificial viscosity) and a 2.4 L flume at
+dp 0.03 to 8 s (reflection); this script runs the long version:
 
     python benchmarks/wave_flume.py [--dp 0.01] [--end 8] [--type piston|flap] [--no-damping]
                                     [--visc-alpha A] [--laminar-nu NU] [--order 1|2] [--gauges 0.28 0.5 ...]
