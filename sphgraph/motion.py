@@ -305,13 +305,20 @@ class Body:
 
 
 def _check_sweep(body, ref, fixed_pos, dp, where) -> None:
-    """Refuse a piston whose stroke runs through fixed boundary particles.
+    """Refuse a wavemaker whose stroke runs through fixed boundary particles.
 
     A fixed wall inside the stroke (e.g. a tank's end wall at the paddle, which the
     paddle passes on its back stroke once S/2 exceeds a spacing) stands in the
     water's way: the water cannot follow the paddle back, the delivered stroke is
-    short and the wave low -- silently, and the more so the finer dp."""
-    a, tol, half = body.dir, 0.25 * dp, 0.5 * body.stroke
+    short and the wave low -- silently, and the more so the finer dp. A piston moves
+    S/2 at every height; a flap (tan(angle) = S / 2l) moves in proportion to the
+    height above its hinge."""
+    a, tol = body.dir, 0.25 * dp
+    v = ref.shape[1] - 1
+    if body.type == "piston":
+        half = np.full(len(fixed_pos), 0.5 * body.stroke)
+    else:
+        half = np.abs(fixed_pos[:, v] - body.center[v]) * math.tan(body.theta)
     lo, hi = ref.min(axis=0), ref.max(axis=0)
     inside = (fixed_pos[:, a] > lo[a] - half - tol) & (fixed_pos[:, a] < hi[a] + half + tol)
     for b in range(ref.shape[1]):
@@ -321,12 +328,13 @@ def _check_sweep(body, ref, fixed_pos, dp, where) -> None:
     n = int(inside.sum())
     if n:
         ax = _AXES[a]
+        reach = float(half[inside].max())
         first = fixed_pos[np.nonzero(inside)[0][0]]
         raise InputError(
-            f"{where}.body: expected fixed walls out of the stroke of piston {body.name!r} "
-            f"({ax} from {lo[a] - half:.6g} to {hi[a] + half:.6g} m), got {n} fixed boundary "
-            f"particles in it (e.g. at {[round(float(v), 6) for v in first]}); start the tank "
-            f"behind {ax} = {lo[a] - half:.6g} m so the water can follow the paddle back")
+            f"{where}.body: expected fixed walls out of the stroke of {body.type} {body.name!r} "
+            f"({ax} from {lo[a] - reach:.6g} to {hi[a] + reach:.6g} m), got {n} fixed boundary "
+            f"particles in it (e.g. at {[round(float(x), 6) for x in first]}); start the tank "
+            f"behind {ax} = {lo[a] - reach:.6g} m so the water can follow the paddle back")
 
 
 class Motion:
@@ -363,7 +371,7 @@ class Motion:
         fixed[ids] = False
         fixed_pos = lat.positions(bidx[fixed])
         for i, (body, ref) in enumerate(zip(bodies, refs)):
-            if body.type == "piston":
+            if body.type in ("piston", "flap"):
                 _check_sweep(body, ref, fixed_pos, scene.dp, f"{scene.source}: motion[{i}]")
         order = np.argsort(ids, kind="stable")
         return cls(bodies, ids[order], np.concatenate(body_of)[order], np.concatenate(refs)[order])

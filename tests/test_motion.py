@@ -190,20 +190,22 @@ def test_motion_entries_are_validated(motion, msg):
         tank_scene(motion)
 
 
-def piston_in_tank(tank_x0):
+def piston_in_tank(tank_x0, kind="piston"):
     """H = 0.08 m, T = 1 s, d = 0.3 m: S/2 = 0.031 m > dp = 0.02 m, so a fixed end wall
-    at the paddle (tank from x = 0, 2 layers: the outer one at x = -dp) is in the stroke."""
-    d = tank_scene({"body": "paddle", "type": "piston", "height": 0.08, "period": 1.0,
+    at the paddle (tank from x = 0, 2 layers: the outer one at x = -dp) is in the stroke
+    (a flap's top reaches further back than S/2)."""
+    d = tank_scene({"body": "paddle", "type": kind, "height": 0.08, "period": 1.0,
                     "depth": 0.3}).to_dict()
     d["boundary"][0].update(min=[tank_x0, 0.0], layers=2)
     return Scene.from_dict(d, source="flume.toml")
 
 
-def test_a_fixed_wall_in_the_pistons_stroke_is_refused():
-    with pytest.raises(InputError, match=r"flume.toml: motion\[0\].body: .*stroke of piston "
-                                         r"'paddle' \(x from -0.0307\d* to 0.0507\d* m\), got \d+ fixed"):
-        Simulation(piston_in_tank(0.0))
-    sim = Simulation(piston_in_tank(-0.08))     # the end wall behind the back stroke
+@pytest.mark.parametrize("kind,behind", [("piston", -0.08), ("flap", -0.16)])
+def test_a_fixed_wall_in_the_wavemakers_stroke_is_refused(kind, behind):
+    with pytest.raises(InputError, match=rf"flume.toml: motion\[0\].body: .*stroke of {kind} "
+                                         r"'paddle' \(x from -0.0\d* to 0.\d* m\), got \d+ fixed"):
+        Simulation(piston_in_tank(0.0, kind))
+    sim = Simulation(piston_in_tank(behind, kind))     # the end wall behind the back stroke
     sim.step()
     a, m = moved(sim)
     fixed = (a["kind"] == 1) & (a["position"][:, 1] > 0.03)
