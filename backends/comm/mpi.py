@@ -39,6 +39,7 @@ from .base import CommBackend, SeqCheck
 
 DEFAULT_WATCHDOG = 120.0   # s; --watchdog
 IO_FACTOR = 10.0           # waits that may include the root's frame/checkpoint write
+ABORT_GRACE_S = 0.3        # s between the one-line report on stderr and MPI_Abort
 
 
 def _mpi():
@@ -168,6 +169,7 @@ class _Watchdog:
                       f"{at} for {peer} (limit {limit:g} s, --watchdog); aborting all ranks",
                       file=sys.stderr, flush=True)
                 try:
+                    time.sleep(ABORT_GRACE_S)    # let mpiexec forward the line first
                     self.b.comm.Abort(3)
                 finally:
                     os._exit(3)
@@ -302,6 +304,9 @@ class MPIComm(CommBackend):
         return self.collective(self.comm.bcast, pick, root=0, what=what)
 
     def abort(self, code: int) -> None:
+        # the one-line report was just written to stderr: give mpiexec's proxy a moment to
+        # forward it before MPI_Abort kills the processes (the line was lost at times)
+        time.sleep(ABORT_GRACE_S)
         self.comm.Abort(code)
 
     def finish(self) -> None:
