@@ -43,8 +43,9 @@ def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, dampin
     # paddle would stand in the water's way once S/2 > dp (sphgraph.motion refuses it)
     kd = 2 * math.pi / L * depth
     ratio = waves.piston_ratio(kd) if paddle == "piston" else waves.flap_ratio(kd)
-    x0 = -dp * math.ceil(0.5 * height / ratio / dp + 2)
     top = depth + 3 * height + 0.1
+    reach = 0.5 * height / ratio * (1.0 if paddle == "piston" else top / depth)  # a flap's top goes further
+    x0 = -dp * math.ceil(reach / dp + 2)
     d = {"format": 1, "name": "wave_flume2d", "dim": 2, "dp": dp, "end_time": end_time,
          "output_interval": end_time,
          "domain": {"min": [-0.3, -3 * dp], "max": [length + 3 * dp, top + 0.3], "origin": [0.0, 0.0]},

@@ -367,12 +367,13 @@ class Motion:
             body_of.append(np.full(len(rows), len(bodies) - 1, np.int32))
             refs.append(ref)
         ids = np.concatenate(ids)
-        fixed = np.ones(len(bidx), bool)
-        fixed[ids] = False
-        fixed_pos = lat.positions(bidx[fixed])
-        for i, (body, ref) in enumerate(zip(bodies, refs)):
-            if body.type in ("piston", "flap"):
-                _check_sweep(body, ref, fixed_pos, scene.dp, f"{scene.source}: motion[{i}]")
+        if any(b.type in ("piston", "flap") for b in bodies):   # fixed positions only when needed
+            fixed = np.ones(len(bidx), bool)
+            fixed[ids] = False
+            fixed_pos = lat.positions(bidx[fixed])
+            for i, (body, ref) in enumerate(zip(bodies, refs)):
+                if body.type in ("piston", "flap"):
+                    _check_sweep(body, ref, fixed_pos, scene.dp, f"{scene.source}: motion[{i}]")
         order = np.argsort(ids, kind="stable")
         return cls(bodies, ids[order], np.concatenate(body_of)[order], np.concatenate(refs)[order])
 
