@@ -148,6 +148,53 @@ def test_retarget_casts_float_literals():
     assert set(out["c64"]) == {"float"}
 
 
+QUEUE_SCRIPT = textwrap.dedent('''
+    import json, numpy as np
+    from sphgraph.scene import Scene
+    from sphgraph.solver import Simulation
+    from sphgraph.backends.compute import cuda_kernels as CK
+    d = {"format": 1, "name": "q3", "dim": 3, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
+         "domain": {"min": [-0.2, -0.2, -0.2], "max": [0.6, 0.5, 0.6]},
+         "physics": {"integrator": "verlet", "cell_size": "h", "coefh": 1.1547005383792515,
+                     "diffusion": "fourtakas-full"},
+         "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.15, 0.15, 0.15]}],
+         "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [0.2, 0.2, 0.2], "layers": 1}]}
+    CK.FORCES = "f"
+    sim = Simulation(Scene.from_dict(d, source="<t>"), backend="numba-cuda", precision="float64")
+    sim.step()
+    st = sim.contexts[0].state
+    dv = st.extra["dev"]
+    res, blocks = {}, {}
+    variants = [("f", 32, 8), ("fv", 32, 8), ("fq", 2, 1), ("fq", 32, 8)]
+    for v in variants:
+        CK.FORCES, CK.QCAP, CK.QCHECK = v
+        dv.A()["ar"].copy_to_device(np.full(dv.n, np.nan))   # poison: every row must be written
+        sim.compute.forces(st, "interior")
+        A = dv.A()
+        res[str(v)] = [A[k].copy_to_host()[:dv.n] for k in ("ax", "ay", "az", "ar", "visc")]
+        blocks[str(v)] = CK.force_kernels(dv.dtype, st.prm, 0, 0, 0).block
+    ref = res[str(variants[0])]
+    print(json.dumps({"n": dv.n, "nf": dv.nf, "blocks": blocks,
+                      "diff": {k: [float(np.abs(a - b).max()) for a, b in zip(ref, r)] for k, r in res.items()},
+                      "nan": {k: int(np.isnan(r[3]).sum()) for k, r in res.items()}}))
+''')
+
+
+def test_simulator_fluid_force_kernels_sum_alike():
+    """k_forces_fv (16-byte loads, float cell ranges) and k_forces_fq (neighbour queue,
+    warp collectives) against k_forces_f on one 3D state, in the simulator with 32-thread
+    blocks standing in for warps: the same sums in the same order (bit-identical), also
+    with 2-entry queues checked every candidate, which overflow and flush."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", SPHGRAPH_SIM_WARP="32")
+    r = subprocess.run([sys.executable, "-c", QUEUE_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-4000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["blocks"]["('fq', 2, 1)"] == 32 and out["nf"] > 20   # lanes with work, lanes past the fluid rows
+    assert set(out["nan"].values()) == {0}
+    for v, d in out["diff"].items():
+        assert d == [0.0] * 5, (v, d)
+
+
 # ----------------------------------------------------------------------------- real GPU
 @pytest.mark.gpu
 @gpu

@@ -1007,9 +1007,21 @@ class NumbaCUDA(ComputeBackend):
             geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                    int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                    dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
-            kf = self._on(state, CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
-                                                  int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
-            if nf:
+            built = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
+                                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
+            kf = self._on(state, built)
+            if nf and built.relative:
+                # cell ranges from the relative positions: origin less the reference point,
+                # support radius padded by the rounding of both (k_forces_fv/fq)
+                rel = [float(origin[k]) - float(dv.ref[axes[k]]) if axes[k] >= 0 else 0.0 for k in range(3)]
+                span = max([abs(x) for x in rel] + [float(dims[k]) / float(inv) for k in range(3)])
+                pad = np.sqrt(state.prm[P_SUPPORT2]) * (1 + 1e-6) + 16 * np.finfo(dv.dtype).eps * span
+                kf.k_forces_f[CK.blocks(nf, built.block), built.block](
+                    A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]), ft(rel[0]), ft(rel[1]), ft(rel[2]),
+                    ft(inv), ft(pad), int(dims[0]), int(dims[1]), int(dims[2]),
+                    int(axes[0]), int(axes[1]), int(axes[2]), 1 if final else 0,
+                    ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+            elif nf:
                 kf.k_forces_f[CK.blocks(nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
