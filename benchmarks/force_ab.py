@@ -4,11 +4,11 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:QCAP:QCHECK:MAXREG:BLOCK (KERNEL f, fv or fq: cuda_kernels.FORCES).
+A variant is KERNEL:MAXREG:BLOCK (KERNEL f, fv, or fvs: fv with cuda_kernels.SPLIT).
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
 
-    python3 benchmarks/force_ab.py --dp 0.006 --variants f:32:8:64:128 fv:32:8:64:128 fq:32:8:64:128
+    python3 benchmarks/force_ab.py --dp 0.006 --variants f:64:128 fv:64:128 fv:72:128
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def main(argv=None):
     ap.add_argument("--warmup", type=int, default=5)
     ap.add_argument("--reps", type=int, default=10, help="forces calls per timing")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--variants", nargs="+", default=["f:32:8:64:128", "fv:32:8:64:128"])
+    ap.add_argument("--variants", nargs="+", default=["f:64:128", "fv:64:128"])
     ap.add_argument("--precision", default="float32")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
@@ -45,12 +45,12 @@ def main(argv=None):
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     n = dv.n
-    keep = (CK.FORCES, CK.QCAP, CK.QCHECK, CK.MAXREG, CK.FORCE_BLOCK)
+    keep = (CK.FORCES, CK.SPLIT, CK.MAXREG, CK.FORCE_BLOCK)
 
     def setv(v):
         f, *rest = v.split(":")
-        CK.FORCES = f
-        CK.QCAP, CK.QCHECK, CK.MAXREG, CK.FORCE_BLOCK = (int(x) for x in rest)
+        CK.FORCES, CK.SPLIT = ("fv", 1) if f == "fvs" else (f, 0)
+        CK.MAXREG, CK.FORCE_BLOCK = (int(x) for x in rest)
 
     def outputs():
         A = dv.A()
@@ -80,7 +80,7 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.QCAP, CK.QCHECK, CK.MAXREG, CK.FORCE_BLOCK = keep
+    CK.FORCES, CK.SPLIT, CK.MAXREG, CK.FORCE_BLOCK = keep
     pairs = sim.compute.count_pairs(st)
     base = None
     for v in a.variants:

@@ -25,7 +25,7 @@ import os
 import types
 
 import numpy as np
-from numba import cuda, int32, njit
+from numba import cuda, njit
 from numba.core.dispatcher import Dispatcher
 
 from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
@@ -40,20 +40,15 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # Neighbour queue of k_forces_f (see there): pending neighbours per thread, a power of 2
 # (0: the kernel without the queue). 16 keeps the pair body ~90 % warp-efficient
 # (a Bernoulli model of 32 lanes accepting 45 % of candidates: 71 % at 4, 82 % at 8).
-# The fluid force kernel: "f" (k_forces_f), "fv" (k_forces_fv: 16-byte loads, float cell
-# ranges) or "fq" (k_forces_fq: fv with the neighbour queue).
+# The fluid force kernel: "f" (k_forces_f) or "fv" (k_forces_fv: 16-byte record loads,
+# cell ranges in the run's type). Measured on the H200 (SPHERIC 2, 4.4 M; BENCHMARKS.md §6):
+# fv 5 % faster. A variant with a per-lane neighbour queue in shared memory (the pair body
+# run only when every lane had a neighbour) raised the warp's active lanes from 20.7 to 27
+# of 32 but executed 30 % more instructions: 0.8x, dropped.
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
-QCAP = int(os.environ.get("SPHGRAPH_CUDA_QUEUE", "32"))
-QCHECK = int(os.environ.get("SPHGRAPH_CUDA_QUEUE_CHECK", "8"))   # candidates between flush checks
-if FORCES not in ("f", "fv", "fq"):
-    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f, fv or fq")
-if QCAP < 2 or QCAP & (QCAP - 1) or QCHECK < 1 or QCHECK & (QCHECK - 1) or QCHECK >= QCAP:
-    raise ValueError(f"SPHGRAPH_CUDA_QUEUE={QCAP}, _CHECK={QCHECK}: expected powers of 2, check < queue")
-WARP = 32
-FULL_MASK = 0xFFFFFFFF
-# the simulator's stand-in for a warp: one block of SIM_WARP threads (its collectives are
-# block barriers between Python threads: slow, so 1 by default; tests run 32 on tiny cases)
-SIM_WARP = int(os.environ.get("SPHGRAPH_SIM_WARP", "1"))
+SPLIT = int(os.environ.get("SPHGRAPH_CUDA_SPLIT", "0"))   # fv: fluid and boundary candidates in two loops
+if FORCES not in ("f", "fv"):
+    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
 
 
 # ------------------------------------------------------------------------------- retargeting
@@ -124,7 +119,7 @@ if SIMULATOR:
 else:
     from llvmlite import ir as _ir
     from numba.core import cgutils as _cg, types as _nt
-    from numba.core.extending import intrinsic as _intrinsic
+    from numba.core.extending import intrinsic as _intrinsic  # noqa: E402
 
     @_intrinsic
     def load4(typingctx, arr, idx):
@@ -1030,11 +1025,32 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
     visc_[i] = vmax
 
 
+@njit(inline="always")
+def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2, prm,
+             kernel_id, ddt_kind, laminar):
+    """k_forces_fv's test and pair body for the record at j4: (within reach, contributions)."""
+    xb, yb, zb, pb = load4(pos4, j4)
+    drx = xa - xb
+    dry = ya - yb
+    drz = za - zb
+    r2 = drx * drx + dry * dry + drz * drz
+    if r2 > support2 or r2 < 1e-18:
+        z = r2 - r2
+        return False, z, z, z, z, z, 0, z
+    vxb, vyb, vzb, rho_b = load4(vel4, j4)
+    fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a, inv_rho_a,
+                                            rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id, ddt_kind, laminar)
+    return True, fx, fy, fz, fr, fd, fc, fv
+
+
 def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_f (same sums in the same order) with 16-byte record loads and cell ranges
-    from the relative positions in the run's type (arguments as k_forces_fq): no
-    float64 registers, two loads a candidate instead of eight."""
+    """k_forces_f (same sums in the same order) with 16-byte record loads (two a
+    candidate instead of eight) and cell ranges from the relative positions in the run's
+    type (no float64 registers): o0..o2 is the grid origin less the rank's reference
+    point, and `pad` the support radius plus the rounding of positions and origin (host
+    side), so the range holds every cell of a row within reach whatever the rounding;
+    the r^2 test decides, as in k_forces_f."""
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     ddt_kind = DDTK
@@ -1095,6 +1111,34 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0
             nfl = start[row + chi + 1] - jf
             jb = start[ncells + row + clo] - nfl
             m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
+            if SPLIT:   # fluid candidates, then boundary ones: loops over j (address increments)
+                for j in range(jf, jf + nfl):
+                    ok, fx, fy, fz, fr, fd, fc, fv = _fv_pair(pos4, vel4, 4 * j, False, xa, ya, za, p_a, vxa, vya,
+                                                              vza, rho_a, inv_rho_a, mf, support2, prm,
+                                                              kernel_id, ddt_kind, laminar)
+                    if ok:
+                        axx += fx
+                        ayy += fy
+                        azz += fz
+                        arr += fr
+                        dd += fd
+                        cc |= fc
+                        if fv > vmax:
+                            vmax = fv
+                for j in range(jb + nfl, jb + m):
+                    ok, fx, fy, fz, fr, fd, fc, fv = _fv_pair(pos4, vel4, 4 * j, True, xa, ya, za, p_a, vxa, vya,
+                                                              vza, rho_a, inv_rho_a, mb, support2, prm,
+                                                              kernel_id, ddt_kind, laminar)
+                    if ok:
+                        axx += fx
+                        ayy += fy
+                        azz += fz
+                        arr += fr
+                        dd += fd
+                        cc |= fc
+                        if fv > vmax:
+                            vmax = fv
+                continue
             for t in range(m):
                 b_bound = t >= nfl
                 j4 = 4 * ((jb + t) if b_bound else (jf + t))
@@ -1117,250 +1161,6 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0
                 cc |= fc
                 if fv > vmax:
                     vmax = fv
-    dim3 = a0 >= 0 and a1 >= 0 and a2 >= 0
-    if final:
-        ax_[i] = axx + gx
-        ay_[i] = ayy + gy
-        if dim3:
-            az_[i] = azz + gz
-        ar_[i] = arr + (dd if cc == 0 else zero * dd)
-    else:
-        ax_[i] = axx
-        ay_[i] = ayy
-        if dim3:
-            az_[i] = azz
-        ar_[i] = arr
-        ddt_[i] = dd
-        cancel_[i] = cc
-    visc_[i] = vmax
-
-
-# ------------------------------------------------------------------ queued fluid force kernel
-# Warp collectives of k_forces_fq. On the GPU: shuffles and votes of the full warp (every
-# call site is warp-uniform). The simulator has no warp intrinsics: there the kernel runs
-# blocks of SIM_WARP threads, and these go through shared memory and block barriers.
-if SIMULATOR:
-    # plain Python, reaching the block through the simulator's kernel context (a
-    # simulated device function would swap the `cuda` name under the other threads)
-    from numba.cuda.simulator.kernel import _get_kernel_context
-
-    def _wmax(v, scr, tid):
-        cu = _get_kernel_context()
-        nb = cu.blockDim.x
-        if nb == 1:
-            return v
-        cu.syncthreads()
-        scr[tid] = v
-        cu.syncthreads()
-        return max(scr[:nb])
-
-    def _wmin(v, scr, tid):
-        return -_wmax(-v, scr, tid)
-
-    def _wcount(pred, scr, tid):
-        cu = _get_kernel_context()
-        if cu.blockDim.x == 1:
-            return 1 if pred else 0
-        return cu.syncthreads_count(1 if pred else 0)
-
-    def _wany(pred, scr, tid):
-        cu = _get_kernel_context()
-        if cu.blockDim.x == 1:
-            return bool(pred)
-        return cu.syncthreads_or(1 if pred else 0) != 0
-else:
-    @njit
-    def _wmax(v, scr, tid):
-        for s in (16, 8, 4, 2, 1):
-            v = max(v, cuda.shfl_xor_sync(FULL_MASK, v, s))
-        return v
-
-    @njit
-    def _wmin(v, scr, tid):
-        for s in (16, 8, 4, 2, 1):
-            v = min(v, cuda.shfl_xor_sync(FULL_MASK, v, s))
-        return v
-
-    @njit
-    def _wcount(pred, scr, tid):
-        return cuda.popc(cuda.ballot_sync(FULL_MASK, pred))
-
-    @njit
-    def _wany(pred, scr, tid):
-        return cuda.any_sync(FULL_MASK, pred)
-
-
-@njit
-def _fq_pair(e, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-             kernel_id, ddt_kind, laminar):
-    """What queue entry e (row j, or -j-1 for a boundary row) adds to the fluid row a."""
-    b_bound = e < 0
-    j = -e - 1 if b_bound else e
-    xb, yb, zb, pb = load4(pos4, 4 * j)
-    vxb, vyb, vzb, rho_b = load4(vel4, 4 * j)
-    drx = xa - xb
-    dry = ya - yb
-    drz = za - zb
-    r2 = drx * drx + dry * dry + drz * drz
-    return fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a, inv_rho_a, rho_b,
-                      p_a, pb, mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
-
-
-def k_forces_fq(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0, n1, n2,
-                a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_f (same sums in the same order) with a neighbour queue, in the run's type.
-
-    In k_forces_f a warp runs the pair body for a candidate whenever one of its 32 lanes
-    accepts it, and a lane accepts about half its candidates (cells of h, rows clipped
-    to the sphere), so the body runs at about half the warp's width. Here each lane
-    only tests its candidates (one 16-byte load and r^2) and queues the accepted ones
-    in shared memory (QCAP entries a lane); every QCHECK candidates the warp runs the
-    body while every working lane has a neighbour queued (or a queue could fill before
-    the next check), one neighbour per lane. Each lane
-    takes its neighbours first in, first out, so the sums are those of k_forces_f.
-
-    The warp walks the union of its lanes' cell rows and, in each row, up to the
-    longest lane's candidate count: control flow is warp-uniform where the warp
-    collectives are (no early return; rows past i1 take part with no work).
-
-    Cell ranges come from the relative positions (pos4) in the run's type: o0..o2 is
-    the grid origin less the rank's reference point, and `pad` the support radius plus
-    the rounding of positions and origin (host side), so the range holds every cell
-    of a row within reach whatever the rounding; the r^2 test decides, as before."""
-    prm = cuda.const.array_like(PRMC)
-    kernel_id = KID
-    ddt_kind = DDTK
-    laminar = LAM
-    fb = QBLOCK
-    qm = QCAP - 1
-    queue = cuda.shared.array(QSHAPE, int32)
-    scr = cuda.shared.array(SSHAPE, int32)
-    tid = cuda.threadIdx.x
-    i = cuda.grid(1) + i0
-    live = i < i1
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
-    d4 = 4 * (i if live else i0)
-    xa, ya, za, p_a = load4(pos4, d4)
-    vxa, vya, vza, rho_a = load4(vel4, d4)
-    zero = rho_a - rho_a
-    big = 1 << 30
-    # the lane's position along the grid's axes and its row span (for the warp's union:
-    # a row outside a lane's own span fails its distance test below)
-    q0 = xa if a0 == 0 else (ya if a0 == 1 else za)
-    q1 = zero
-    q2 = zero
-    if a1 >= 0:
-        q1 = xa if a1 == 0 else (ya if a1 == 1 else za)
-    if a2 >= 0:
-        q2 = xa if a2 == 0 else (ya if a2 == 1 else za)
-    lo1 = big
-    hi1 = -1
-    lo2 = big
-    hi2 = -1
-    has = live
-    if live:
-        if max(int(math.floor((q0 - pad - o0) * inv_size)), 0) > min(int(math.floor((q0 + pad - o0) * inv_size)), n0 - 1):
-            has = False
-        lo1 = 0
-        hi1 = 0
-        if a1 >= 0:
-            lo1 = max(int(math.floor((q1 - pad - o1) * inv_size)), 0)
-            hi1 = min(int(math.floor((q1 + pad - o1) * inv_size)), n1 - 1)
-        lo2 = 0
-        hi2 = 0
-        if a2 >= 0:
-            lo2 = max(int(math.floor((q2 - pad - o2) * inv_size)), 0)
-            hi2 = min(int(math.floor((q2 + pad - o2) * inv_size)), n2 - 1)
-        if lo1 > hi1 or lo2 > hi2 or not has:
-            has = False
-            lo1 = big
-            hi1 = -1
-            lo2 = big
-            hi2 = -1
-    nlive = _wcount(has, scr, tid)
-    wlo1 = _wmin(lo1, scr, tid)
-    w1 = _wmax(hi1, scr, tid) - wlo1 + 1
-    wlo2 = _wmin(lo2, scr, tid)
-    w2 = _wmax(hi2, scr, tid) - wlo2 + 1
-    nrows = w1 * w2 if (w1 > 0 and w2 > 0) else 0
-    size = 1.0 / inv_size
-    reach2 = pad * pad
-    inv_rho_a = 1.0 / rho_a
-    axx = zero
-    ayy = zero
-    azz = zero
-    arr = zero
-    dd = zero
-    cc = 0
-    vmax = zero
-    head = 0
-    tail = 0
-    for r in range(nrows + 1):        # the warp's rows, then one pass that drains the queues
-        m = 0
-        nfl = 0
-        jf = 0
-        jb = 0
-        if r < nrows and has:
-            r2_ = r // w1
-            c2 = wlo2 + r2_
-            c1 = wlo1 + r - r2_ * w1
-            d2 = zero
-            if a2 >= 0:
-                d2 = max(zero, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
-            d1 = zero
-            if a1 >= 0:
-                d1 = max(zero, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
-            rem = reach2 - d1 * d1 - d2 * d2
-            if rem >= 0.0:
-                rr = math.sqrt(rem)
-                clo = max(0, int(math.floor((q0 - rr - o0) * inv_size)))
-                chi = min(n0 - 1, int(math.floor((q0 + rr - o0) * inv_size)))
-                if clo <= chi:
-                    row = (c2 * n1 + c1) * n0
-                    jf = start[row + clo]
-                    nfl = start[row + chi + 1] - jf
-                    jb = start[ncells + row + clo] - nfl
-                    m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
-        mm = _wmax(m, scr, tid)
-        drain = r == nrows
-        for t in range(mm + (1 if drain else 0)):   # the drain pass: no candidate, one flush
-            if t < m:
-                b_bound = t >= nfl
-                j = (jb + t) if b_bound else (jf + t)
-                xb, yb, zb, pb = load4(pos4, 4 * j)
-                drx = xa - xb
-                dry = ya - yb
-                drz = za - zb
-                r2 = drx * drx + dry * dry + drz * drz
-                if r2 <= support2 and r2 >= 1e-18:
-                    queue[(tail & qm) * fb + tid] = (-j - 1) if b_bound else j
-                    tail += 1
-            # every QCHECK candidates and at the row's end: the body, one neighbour a lane,
-            # while every working lane has one queued, or a queue could overflow before
-            # the next check, or, at the end, until all queues are empty
-            if (t & (QCHECK - 1)) != QCHECK - 1 and t + 1 < mm:
-                continue
-            while nlive > 0 and (_wcount(tail > head, scr, tid) >= nlive
-                                 or _wany(tail - head > QCAP - QCHECK, scr, tid)
-                                 or (drain and _wany(tail > head, scr, tid))):
-                if tail > head:
-                    e = queue[(head & qm) * fb + tid]
-                    head += 1
-                    fx, fy, fz, fr, fd, fc, fv = _fq_pair(
-                        e, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-                        kernel_id, ddt_kind, laminar)
-                    axx += fx
-                    ayy += fy
-                    azz += fz
-                    arr += fr
-                    dd += fd
-                    cc |= fc
-                    if fv > vmax:
-                        vmax = fv
-    if not live:
-        return
     dim3 = a0 >= 0 and a1 >= 0 and a2 >= 0
     if final:
         ax_[i] = axx + gx
@@ -1575,17 +1375,12 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
     fm = (dt == np.float32) if fastmath is None else bool(fastmath)
     mr = (MAXREG if dt == np.float32 else 0) if max_registers is None else int(max_registers)
     pc = np.ascontiguousarray(prm, dt)
-    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES, QCAP, QCHECK,
-           FORCE_BLOCK,
-           SIM_WARP)
+    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES, SPLIT)
     if key not in _FORCES:
         memo = {}
-        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar)}
+        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar), "SPLIT": SPLIT}
         out = {}
-        fb = SIM_WARP if SIMULATOR else FORCE_BLOCK
-        extra.update(QBLOCK=fb, QSHAPE=max(QCAP, 1) * fb, SSHAPE=fb if SIMULATOR else 1)
-        out["block"] = fb if FORCES == "fq" else FORCE_BLOCK
-        out["relative"] = FORCES != "f"      # the fv/fq arguments
+        out["relative"] = FORCES != "f"      # k_forces_fv's arguments
         for name in ("k_forces_f", "k_forces_b"):
             src = ("k_forces_" + FORCES) if name == "k_forces_f" else name
             fn = _clone(globals()[src], dt, memo, extra)

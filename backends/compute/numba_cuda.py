@@ -1012,11 +1012,11 @@ class NumbaCUDA(ComputeBackend):
             kf = self._on(state, built)
             if nf and built.relative:
                 # cell ranges from the relative positions: origin less the reference point,
-                # support radius padded by the rounding of both (k_forces_fv/fq)
+                # support radius padded by the rounding of both (k_forces_fv)
                 rel = [float(origin[k]) - float(dv.ref[axes[k]]) if axes[k] >= 0 else 0.0 for k in range(3)]
                 span = max([abs(x) for x in rel] + [float(dims[k]) / float(inv) for k in range(3)])
                 pad = np.sqrt(state.prm[P_SUPPORT2]) * (1 + 1e-6) + 16 * np.finfo(dv.dtype).eps * span
-                kf.k_forces_f[CK.blocks(nf, built.block), built.block](
+                kf.k_forces_f[CK.blocks(nf, FB), FB](
                     A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]), ft(rel[0]), ft(rel[1]), ft(rel[2]),
                     ft(inv), ft(pad), int(dims[0]), int(dims[1]), int(dims[2]),
                     int(axes[0]), int(axes[1]), int(axes[2]), 1 if final else 0,
