@@ -42,7 +42,7 @@ for s in "$@"; do
                 --ranks 2 --steps 20 --warmup 3 --json "$OUT/multi_nolanes.json" ;;
     # fluid force kernel variants QCAP:MAXREG:BLOCK on one 4.4 M state (neighbour queue, issue 6 §6)
     forceab)  stage forceab 240 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
-                --variants f:64:128 fv:64:128 fvs:64:128 fv:56:128 fvs:72:128 fv:64:64 \
+                --variants f:64:128 fv:64:128 fvs:64:128 fvs:56:128 fvs:48:128 \
                 --json "$OUT/force_ab.json" ;;
     # Nsight Compute on one launch of each fluid kernel (plain, queued) at 1.1 M
     ncu)      NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)

@@ -46,7 +46,7 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # run only when every lane had a neighbour) raised the warp's active lanes from 20.7 to 27
 # of 32 but executed 30 % more instructions: 0.8x, dropped.
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
-SPLIT = int(os.environ.get("SPHGRAPH_CUDA_SPLIT", "0"))   # fv: fluid and boundary candidates in two loops
+SPLIT = int(os.environ.get("SPHGRAPH_CUDA_SPLIT", "1"))   # fv: fluid, then boundary candidates, in two loops
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
 
