@@ -4,7 +4,7 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:MAXREG:BLOCK (KERNEL f, fv, or fvs: fv with cuda_kernels.SPLIT).
+A variant is KERNEL:MAXREG:BLOCK (KERNEL f or fv: cuda_kernels.FORCES).
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
 
@@ -45,11 +45,11 @@ def main(argv=None):
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     n = dv.n
-    keep = (CK.FORCES, CK.SPLIT, CK.MAXREG, CK.FORCE_BLOCK)
+    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK)
 
     def setv(v):
         f, *rest = v.split(":")
-        CK.FORCES, CK.SPLIT = ("fv", 1) if f == "fvs" else (f, 0)
+        CK.FORCES = f
         CK.MAXREG, CK.FORCE_BLOCK = (int(x) for x in rest)
 
     def outputs():
@@ -80,7 +80,7 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.SPLIT, CK.MAXREG, CK.FORCE_BLOCK = keep
+    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK = keep
     pairs = sim.compute.count_pairs(st)
     base = None
     for v in a.variants:

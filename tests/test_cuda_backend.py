@@ -165,14 +165,14 @@ FORCES_SCRIPT = textwrap.dedent('''
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     res = {}
-    for v in ("f", "fv", "fvs"):
-        CK.FORCES, CK.SPLIT = ("fv", 1) if v == "fvs" else (v, 0)
+    for v in ("f", "fv"):
+        CK.FORCES = v
         dv.A()["ar"].copy_to_device(np.full(dv.n, np.nan))   # poison: every row must be written
         sim.compute.forces(st, "interior")
         A = dv.A()
         res[v] = [A[k].copy_to_host()[:dv.n] for k in ("ax", "ay", "az", "ar", "visc")]
     print(json.dumps({"n": dv.n, "nf": dv.nf,
-                      "diff": {v: [float(np.abs(a - b).max()) for a, b in zip(res["f"], res[v])] for v in ("fv", "fvs")},
+                      "diff": [float(np.abs(a - b).max()) for a, b in zip(res["f"], res["fv"])],
                       "scale": [float(np.abs(a).max()) for a in res["f"]],
                       "nan": {k: int(np.isnan(r[3]).sum()) for k, r in res.items()}}))
 ''')
@@ -180,16 +180,16 @@ FORCES_SCRIPT = textwrap.dedent('''
 
 def test_simulator_fluid_force_kernels_sum_alike():
     """k_forces_fv (16-byte record loads, cell ranges from the relative positions in the
-    run's type; candidates in one loop or, SPLIT, fluid and boundary loops) against
-    k_forces_f on one 3D state in the simulator: the same sums in the same order
-    (bit-identical), every row written."""
+    run's type, fluid and boundary candidates in loops of their own) against k_forces_f
+    on one 3D state in the simulator: the same sums in the same order (bit-identical),
+    every row written."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
     r = subprocess.run([sys.executable, "-c", FORCES_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-4000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["nf"] > 20 and min(out["scale"][:4]) > 0
     assert set(out["nan"].values()) == {0}
-    assert out["diff"] == {"fv": [0.0] * 5, "fvs": [0.0] * 5}, out
+    assert out["diff"] == [0.0] * 5, out
 
 
 # ----------------------------------------------------------------------------- real GPU
