@@ -40,18 +40,18 @@ for s in "$@"; do
     # the multi stage again with every rank on its default stream (before lanes), to compare
     multi-nolanes) stage multi_nolanes 300 env SPHGRAPH_CUDA_STREAMS=0 python3 benchmarks/gpu_multi.py --dp 0.01 \
                 --ranks 2 --steps 20 --warmup 3 --json "$OUT/multi_nolanes.json" ;;
-    # fluid force kernel variants QCAP:MAXREG:BLOCK on one 4.4 M state (neighbour queue, issue 6 §6)
+    # fluid force kernel variants KERNEL:MAXREG:BLOCK timed on one 4.4 M state (issue 6 §6)
     forceab)  stage forceab 240 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants f:64:128 fv:64:128 fv:56:128 --json "$OUT/force_ab.json" ;;
-    # Nsight Compute on one launch of each fluid kernel (plain, queued) at 1.1 M
+    # Nsight Compute on one launch of each fluid kernel (k_forces_f, k_forces_fv) at 1.1 M
     ncu)      NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
               stage ncu 240 "$NCU" --clock-control none --target-processes all -k regex:k_forces_f \
-                --launch-skip 2 --launch-count 3 --section SpeedOfLight --section Occupancy \
+                --launch-skip 2 --launch-count 2 --section SpeedOfLight --section Occupancy \
                 --section WarpStateStats --section SchedulerStats --section LaunchStats \
                 --metrics smsp__thread_inst_executed_per_inst_executed.ratio,smsp__inst_executed.sum \
                 python3 benchmarks/force_ab.py --dp 0.01 --warmup 1 --reps 1 --rounds 1 \
                 --variants f:64:128 fv:64:128 ;;
-    # SPHERIC 2 at 4.4 M and 13 M with the default kernels
+    # SPHERIC 2 at 1.1, 4.4 and 13 M with the default kernels, 50 timed steps
     spheric2-4m) stage spheric2_4m 300 python3 benchmarks/gpu_bench.py --dp 0.01 0.006 0.004 --steps 50 --warmup 3 \
                 --profile-steps 3 --bare --json "$OUT/spheric2_4m.json" ;;
     *) echo "unknown stage $s"; exit 2 ;;
