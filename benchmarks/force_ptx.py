@@ -42,10 +42,10 @@ def main(argv=None):
     sig_f = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, i64, i64, f32, f32, f32,
                                                           a32, a32, a32, a32, a32, ai8, a32)
     sig_b = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, a32, a32, a32, a32, a32, ai8, a32)
+    CK.FORCES = a.forces or CK.FORCES
     if CK.FORCES != "f":   # k_forces_fv
         sig_f = (a32, a32, i64, i64, ai32, i64) + (f32,) * 5 + (i64,) * 7 + (f32,) * 3 + (a32,) * 5 + (ai8, a32)
     mr = CK.MAXREG if a.maxreg is None else a.maxreg
-    CK.FORCES = a.forces or CK.FORCES
     import numba.cuda.dispatcher as D   # device functions ask the (absent) device for its cc
     D.get_current_device = lambda: type("Dev", (), {"compute_capability": (9, 0)})()
     kf = CK.force_kernels(np.float32, st.prm, int(opt[O_KERNEL]), int(opt[O_DDT]), int(opt[O_LAMINAR]))

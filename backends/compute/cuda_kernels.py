@@ -37,14 +37,12 @@ BLOCK = 256          # threads per block, element-wise kernels
 FORCE_BLOCK = int(os.environ.get("SPHGRAPH_CUDA_FORCE_BLOCK", "128"))   # threads per block, force kernels
 REDUCE_BLOCKS = 512  # blocks of the grid-stride reductions (dt, bounds/check)
 SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK * SCAN_ITEMS)
-# Neighbour queue of k_forces_f (see there): pending neighbours per thread, a power of 2
-# (0: the kernel without the queue). 16 keeps the pair body ~90 % warp-efficient
-# (a Bernoulli model of 32 lanes accepting 45 % of candidates: 71 % at 4, 82 % at 8).
 # The fluid force kernel: "f" (k_forces_f) or "fv" (k_forces_fv: 16-byte record loads,
-# cell ranges in the run's type). Measured on the H200 (SPHERIC 2, 4.4 M; BENCHMARKS.md §6):
-# fv 5 % faster. A variant with a per-lane neighbour queue in shared memory (the pair body
-# run only when every lane had a neighbour) raised the warp's active lanes from 20.7 to 27
-# of 32 but executed 30 % more instructions: 0.8x, dropped.
+# cell ranges in the run's type, fluid and boundary candidates in loops of their own).
+# Measured on the H200 (SPHERIC 2, 4.4 M; docs/gpu.md): fv 1.11x. A variant with a per-lane
+# neighbour queue in shared memory (the pair body run only when every lane had a neighbour)
+# raised the warp's active lanes from 20.7 to 27 of 32 but executed 15-30 % more
+# instructions: 0.6-0.8x, dropped.
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -1007,16 +1005,25 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                     cc |= fc
                     if fv > vmax:
                         vmax = fv
+    _store_fluid(i, final, dim == 3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax,
+                 ax_, ay_, az_, ar_, ddt_, cancel_, visc_)
+
+
+@njit(inline="always")
+def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax, ax_, ay_, az_, ar_, ddt_,
+                 cancel_, visc_):
+    """Fluid row i's sums out (k_forces_f, k_forces_fv): with `final` (one part) the reduced
+    result (gravity, diffusion unless a neighbour cancelled it), else the part's raw sums."""
     if final:
         ax_[i] = axx + gx
         ay_[i] = ayy + gy
-        if dim == 3:
+        if dim3:
             az_[i] = azz + gz
-        ar_[i] = arr + (dd if cc == 0 else zero * dd)
+        ar_[i] = arr + (dd if cc == 0 else 0.0 * dd)
     else:
         ax_[i] = axx
         ay_[i] = ayy
-        if dim == 3:
+        if dim3:
             az_[i] = azz
         ar_[i] = arr
         ddt_[i] = dd
@@ -1026,20 +1033,28 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
 
 @njit(inline="always")
 def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2, prm,
-             kernel_id, ddt_kind, laminar):
-    """k_forces_fv's test and pair body for the record at j4: (within reach, contributions)."""
+             kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
+    """k_forces_fv's test and pair body for the record at j4: the sums (axx .. vmax) with
+    its contribution when it is within reach."""
     xb, yb, zb, pb = load4(pos4, j4)
     drx = xa - xb
     dry = ya - yb
     drz = za - zb
     r2 = drx * drx + dry * dry + drz * drz
-    if r2 > support2 or r2 < 1e-18:
-        z = r2 - r2
-        return False, z, z, z, z, z, 0, z
-    vxb, vyb, vzb, rho_b = load4(vel4, j4)
-    fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a, inv_rho_a,
-                                            rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id, ddt_kind, laminar)
-    return True, fx, fy, fz, fr, fd, fc, fv
+    if not (r2 > support2 or r2 < 1e-18):
+        vxb, vyb, vzb, rho_b = load4(vel4, j4)
+        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
+                                                inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
+                                                ddt_kind, laminar)
+        axx += fx
+        ayy += fy
+        azz += fz
+        arr += fr
+        dd += fd
+        cc |= fc
+        if fv > vmax:
+            vmax = fv
+    return axx, ayy, azz, arr, dd, cc, vmax
 
 
 def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0, n1, n2,
@@ -1111,50 +1126,18 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0
             jb = start[ncells + row + clo] - nfl
             m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
             # the row's fluid candidates, then its boundary ones, each in a loop over j of
-            # its own (written twice on purpose: on the H200 one loop over both with a
-            # select per candidate is 5 % slower, and a loop over the two parts 4 %)
+            # its own (on the H200 one loop over both with a select per candidate is 5 %
+            # slower, and a loop over the two parts 4 %)
             for j in range(jf, jf + nfl):
-                ok, fx, fy, fz, fr, fd, fc, fv = _fv_pair(pos4, vel4, 4 * j, False, xa, ya, za, p_a, vxa, vya,
-                                                          vza, rho_a, inv_rho_a, mf, support2, prm,
-                                                          kernel_id, ddt_kind, laminar)
-                if ok:
-                    axx += fx
-                    ayy += fy
-                    azz += fz
-                    arr += fr
-                    dd += fd
-                    cc |= fc
-                    if fv > vmax:
-                        vmax = fv
+                axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+                    pos4, vel4, 4 * j, False, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, support2,
+                    prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
             for j in range(jb + nfl, jb + m):
-                ok, fx, fy, fz, fr, fd, fc, fv = _fv_pair(pos4, vel4, 4 * j, True, xa, ya, za, p_a, vxa, vya,
-                                                          vza, rho_a, inv_rho_a, mb, support2, prm,
-                                                          kernel_id, ddt_kind, laminar)
-                if ok:
-                    axx += fx
-                    ayy += fy
-                    azz += fz
-                    arr += fr
-                    dd += fd
-                    cc |= fc
-                    if fv > vmax:
-                        vmax = fv
-    dim3 = a0 >= 0 and a1 >= 0 and a2 >= 0
-    if final:
-        ax_[i] = axx + gx
-        ay_[i] = ayy + gy
-        if dim3:
-            az_[i] = azz + gz
-        ar_[i] = arr + (dd if cc == 0 else zero * dd)
-    else:
-        ax_[i] = axx
-        ay_[i] = ayy
-        if dim3:
-            az_[i] = azz
-        ar_[i] = arr
-        ddt_[i] = dd
-        cancel_[i] = cc
-    visc_[i] = vmax
+                axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+                    pos4, vel4, 4 * j, True, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb, support2,
+                    prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+    _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax,
+                 ax_, ay_, az_, ar_, ddt_, cancel_, visc_)
 
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
