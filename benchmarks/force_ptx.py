@@ -44,7 +44,8 @@ def main(argv=None):
     sig_b = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, a32, a32, a32, a32, a32, ai8, a32)
     CK.FORCES = a.forces or CK.FORCES
     if CK.FORCES != "f":   # k_forces_fv
-        sig_f = (a32, a32, i64, i64, ai32, i64) + (f32,) * 5 + (i64,) * 7 + (f32,) * 3 + (a32,) * 5 + (ai8, a32)
+        sig_f = (a32, a32, i64, i64, ai32, i64) + (f32,) * 6 + (i64,) * 7 + (f32,) * 3 + (a32,) * 5 + (ai8, a32)
+        sig_b = sig_f                       # k_forces_bv: the same arguments
     mr = CK.MAXREG if a.maxreg is None else a.maxreg
     import numba.cuda.dispatcher as D   # device functions ask the (absent) device for its cc
     D.get_current_device = lambda: type("Dev", (), {"compute_capability": (9, 0)})()

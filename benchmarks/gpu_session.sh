@@ -6,6 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
+#         forceab-trim slow-launch tests-quick
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -43,6 +44,16 @@ for s in "$@"; do
     # fluid force kernel variants KERNEL:MAXREG:BLOCK timed on one 4.4 M state (issue 6 §6)
     forceab)  stage forceab 240 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants f:64:128 fv:64:128 fv:56:128 --json "$OUT/force_ab.json" ;;
+    # trimmed rows (cells sorted along the rows) against whole cells, and register caps
+    forceab-trim) stage forceab_trim 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants f:64:128 fv:64:128:notrim fv:64:128 fv:80:128 fv:0:128 fv:48:128 \
+                --json "$OUT/force_ab_trim.json" ;;
+    # numba-cuda's own launch path (SPHGRAPH_CUDA_FAST_LAUNCH=0), to compare with spheric2
+    slow-launch) stage slow_launch 300 env SPHGRAPH_CUDA_FAST_LAUNCH=0 python3 benchmarks/gpu_bench.py \
+                --dp 0.01 0.006 --steps 20 --warmup 3 --profile-steps 3 --json "$OUT/slow_launch.json" ;;
+    # the GPU tests of this change only
+    tests-quick) stage tests_quick 300 python3 -m pytest -q -m gpu -p no:cacheprovider tests/test_cuda_backend.py \
+                -k "fast_launch or float64_matches or float32_close" ;;
     # Nsight Compute on one launch of each fluid kernel (k_forces_f, k_forces_fv) at 1.1 M
     ncu)      NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
               stage ncu 240 "$NCU" --clock-control none --target-processes all -k regex:k_forces_f \

@@ -119,13 +119,14 @@ def test_simulator_matches_cpu(simulated, dim, integrator, steps):
 
 def test_simulator_bytes_per_step(simulated):
     """Single rank: per step only the dt terms and the check result (with the next
-    grid's bounding box) cross the bus; particle rows move only at upload and sync."""
+    grid's bounding box) come down, nothing goes up (their accumulators are set on the
+    device); particle rows move only at upload and sync."""
     for r in simulated.values():
         stages_dt = 24          # 3 float64 dt terms, once per step
         check = 56              # 6 float64 box + 1 int64 first bad row
         for h2d, d2h in r["step_bytes"]:
             assert d2h == stages_dt + check, r["step_bytes"]
-            assert h2d == stages_dt + check, r["step_bytes"]
+            assert h2d == 0, r["step_bytes"]
         kinds = set(r["bytes_by_kind"])
         assert kinds <= {"h2d:upload", "h2d:dt", "d2h:dt", "h2d:check", "d2h:check", "d2h:sync_host"}, kinds
 
@@ -159,11 +160,17 @@ FORCES_SCRIPT = textwrap.dedent('''
                      "diffusion": "fourtakas-full"},
          "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.15, 0.15, 0.15]}],
          "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [0.2, 0.2, 0.2], "layers": 1}]}
+    d["physics"]["integrator"] = INTEGRATOR
     CK.FORCES = "f"
     sim = Simulation(Scene.from_dict(d, source="<t>"), backend="numba-cuda", precision="float64")
     sim.step()
     st = sim.contexts[0].state
     dv = st.extra["dev"]
+    sim.compute.build_cells(st)              # freshly sorted: rows trimmed with no slack
+    if INTEGRATOR == "symplectic":           # after the predictor: trimmed with its slack
+        sim.compute.forces(st, "interior")
+        st.dt = sim.compute.dt_local(st)
+        sim.compute.integrate(st, 1, "symplectic", False)
     res = {}
     for v in ("f", "fv"):
         CK.FORCES = v
@@ -171,25 +178,65 @@ FORCES_SCRIPT = textwrap.dedent('''
         sim.compute.forces(st, "interior")
         A = dv.A()
         res[v] = [A[k].copy_to_host()[:dv.n] for k in ("ax", "ay", "az", "ar", "visc")]
-    print(json.dumps({"n": dv.n, "nf": dv.nf,
+    print(json.dumps({"n": dv.n, "nf": dv.nf, "moved": float(dv.moved),
                       "diff": [float(np.abs(a - b).max()) for a, b in zip(res["f"], res["fv"])],
                       "scale": [float(np.abs(a).max()) for a in res["f"]],
                       "nan": {k: int(np.isnan(r[3]).sum()) for k, r in res.items()}}))
 ''')
 
 
-def test_simulator_fluid_force_kernels_sum_alike():
-    """k_forces_fv (16-byte record loads, cell ranges from the relative positions in the
-    run's type, fluid and boundary candidates in loops of their own) against k_forces_f
-    on one 3D state in the simulator: the same sums in the same order (bit-identical),
-    every row written."""
+@pytest.mark.parametrize("integrator", ["verlet", "symplectic"])
+def test_simulator_fluid_force_kernels_sum_alike(integrator):
+    """k_forces_fv / k_forces_bv (16-byte record loads, cell ranges from the relative
+    positions in the run's type, rows trimmed to the sphere's chord) against k_forces_f /
+    k_forces_b (whole cells) on one 3D state in the simulator, right after a sort and
+    (Symplectic) after the predictor moved the rows: the same sums in the same order
+    (bit-identical), every row written."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    r = subprocess.run([sys.executable, "-c", FORCES_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    script = f"INTEGRATOR = {integrator!r}\n" + FORCES_SCRIPT
+    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-4000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["nf"] > 20 and min(out["scale"][:4]) > 0
     assert set(out["nan"].values()) == {0}
     assert out["diff"] == [0.0] * 5, out
+    # trimmed with a finite slack: none right after the sort, dt/2 |v|max after the predictor
+    if integrator == "verlet":
+        assert out["moved"] == 0.0, out
+    else:
+        assert 0.0 < out["moved"] < 1e-3, out
+
+
+def test_trimmed_row_holds_exactly_the_chord():
+    """_trimmed (bisection in the first and the last cell of a row of cells, each sorted
+    along the row) returns exactly the rows whose coordinate lies in [lo, hi] when lo
+    lies in or below the first cell and hi in or above the last (as the force kernels
+    ask: the row's cells come from the same chord)."""
+    from sphgraph.backends.compute import cuda_kernels as CK
+    trimmed = getattr(CK._trimmed, "py_func", CK._trimmed)
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        ncell = int(rng.integers(1, 7))
+        counts = rng.integers(0, 6, ncell)
+        start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        x = np.concatenate([np.sort(rng.uniform(c, c + 1, k)) for c, k in enumerate(counts)])
+        if trial % 3 == 0:
+            x = np.round(x * 2) / 2                      # ties, and values on the bounds
+        pos4 = np.zeros(4 * max(len(x), 1))
+        comp = int(rng.integers(0, 3))
+        pos4[comp::4][:len(x)] = x
+        clo = int(rng.integers(0, ncell))
+        chi = int(rng.integers(clo, ncell))
+        # as the kernel asks: lo in or below the first cell (cells are [c, c + 1]), hi in
+        # or above the last, lo <= hi
+        lo = float(rng.uniform(clo - 0.5, clo + 1))
+        hi = float(rng.uniform(max(lo, chi), chi + 1.5))
+        if trial % 3 == 0:
+            lo, hi = np.floor(lo * 2) / 2, np.ceil(hi * 2) / 2
+        j0, j1 = trimmed(pos4, start, 0, clo, chi, comp, lo, hi)
+        whole = np.arange(start[clo], start[chi + 1])
+        want = whole[(x[whole] >= lo) & (x[whole] <= hi)]
+        assert list(range(j0, j1)) == list(want), (trial, j0, j1, want)
 
 
 # ----------------------------------------------------------------------------- real GPU
@@ -210,6 +257,47 @@ def test_gpu_float32_close_to_cpu():
     r = _run(script, sim=False)
     assert r["ids"]
     assert r["pos"] < 1e-5, r["pos"]
+
+
+FAST_LAUNCH = SCENES + textwrap.dedent('''
+    import json, os
+    import numpy as np
+    from sphgraph.solver import Simulation
+    from sphgraph.backends.compute import cuda_launch as CL
+    out = {}
+    for integ in ("verlet", "symplectic"):
+        sim = Simulation(scene(3, integ), backend="numba-cuda", precision="float32")
+        for _ in range(6):
+            sim.step()
+        a = sim.frame_arrays()
+        out[integ] = {k: np.asarray(v).tolist() for k, v in a.items() if k in ("position", "velocity", "density")}
+    out["launches"] = dict(CL.launches)
+    out["enabled"] = CL.ENABLED
+    print(json.dumps(out))
+''')
+
+
+@pytest.mark.gpu
+@gpu
+def test_gpu_fast_launch_bit_identical_to_numba_launch():
+    """cuda_launch's path (numba's overload, arguments flattened as numba flattens them,
+    cuda.core launch) against numba-cuda's own launch: 6 steps of 3D Verlet and
+    Symplectic, float32, bit-identical; most launches took the fast path."""
+    env = dict(os.environ)
+    env.pop("NUMBA_ENABLE_CUDASIM", None)
+    res = {}
+    for flag in ("1", "0"):
+        env["SPHGRAPH_CUDA_FAST_LAUNCH"] = flag
+        r = subprocess.run([sys.executable, "-c", FAST_LAUNCH], env=env, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-4000:]
+        res[flag] = json.loads(r.stdout.strip().splitlines()[-1])
+    fast, slow = res["1"], res["0"]
+    assert fast["enabled"] and not slow["enabled"]
+    assert fast["launches"]["fast"] > 4 * fast["launches"]["numba"], fast["launches"]
+    assert slow["launches"]["fast"] == 0
+    for integ in ("verlet", "symplectic"):
+        for k in fast[integ]:
+            assert fast[integ][k] == slow[integ][k], (integ, k)
 
 
 MULTI = SCENES + textwrap.dedent('''

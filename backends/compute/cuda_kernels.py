@@ -237,6 +237,29 @@ def k_sort_cells(start, ncells, perm):
         perm[j + 1] = v
 
 
+def k_sort_cells_by(start, ncells, perm, key):
+    """Rows of each cell in increasing `key` (the coordinate along the rows of cells;
+    ties in increasing old order): the force kernels trim each row of cells to the
+    sphere's chord by bisection (k_forces_fv)."""
+    c = cuda.grid(1)
+    if c >= ncells:
+        return
+    a = start[c]
+    b = start[c + 1]
+    for i in range(a + 1, b):
+        v = perm[i]
+        kv = key[v]
+        j = i - 1
+        while j >= a:
+            u = perm[j]
+            ku = key[u]
+            if ku < kv or (ku == kv and u < v):
+                break
+            perm[j + 1] = u
+            j -= 1
+        perm[j + 1] = v
+
+
 def k_gather(src, perm, n, dst):
     i = cuda.grid(1)
     if i < n:
@@ -569,6 +592,15 @@ def k_check_bounds(px, py, pz, rho, kind, n, dim, lox, loy, loz, hix, hiy, hiz,
             cuda.atomic.min(box, q, sh[q, 0])
         for q in range(3, 6):
             cuda.atomic.max(box, q, sh[q, 0])
+
+
+def k_check_init(bad, box):
+    """k_check_bounds' accumulators: no bad row yet, an empty box."""
+    if cuda.grid(1) == 0:
+        bad[0] = 9223372036854775807
+        for q in range(3):
+            box[q] = math.inf
+            box[q + 3] = -math.inf
 
 
 def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar,
@@ -1057,14 +1089,54 @@ def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv
     return axx, ayy, azz, arr, dd, cc, vmax
 
 
-def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0, n1, n2,
+@njit(inline="always")
+def _first_at_least(pos4, comp, lo, hi, t):
+    """First j in [lo, hi) whose coordinate `comp` (pos4[4 j + comp]) is >= t, hi if none:
+    a cell's rows are sorted by that coordinate (k_sort_cells_by)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if pos4[4 * mid + comp] < t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(inline="always")
+def _first_above(pos4, comp, lo, hi, t):
+    """First j in [lo, hi) whose coordinate `comp` is > t, hi if none (sorted as above)."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if pos4[4 * mid + comp] <= t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(inline="always")
+def _trimmed(pos4, start, base, clo, chi, comp, lo_t, hi_t):
+    """The rows of cells clo..chi of the row at `base` whose coordinate `comp` lies in
+    [lo_t, hi_t]: the cells are consecutive along `comp` and each is sorted by it, so
+    the ends are found in the first and the last cell only."""
+    s0 = start[base + clo]
+    j0 = _first_at_least(pos4, comp, s0, start[base + clo + 1], lo_t)
+    e0 = start[base + chi]
+    j1 = _first_above(pos4, comp, max(e0, j0), start[base + chi + 1], hi_t)
+    return j0, j1
+
+
+def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """k_forces_f (same sums in the same order) with 16-byte record loads (two a
-    candidate instead of eight) and cell ranges from the relative positions in the run's
-    type (no float64 registers): o0..o2 is the grid origin less the rank's reference
-    point, and `pad` the support radius plus the rounding of positions and origin (host
-    side), so the range holds every cell of a row within reach whatever the rounding;
-    the r^2 test decides, as in k_forces_f."""
+    candidate instead of eight), cell ranges from the relative positions in the run's
+    type (no float64 registers), and each row of cells trimmed to the candidates whose
+    coordinate along the row lies within the sphere's chord: o0..o2 is the grid origin
+    less the rank's reference point, `pad` the support radius plus the rounding of
+    positions and origin (host side), so the range holds every row within reach
+    whatever the rounding, and `tpad` twice the most a row moved since the cells were
+    sorted (the sort order along the row may be stale by that much). The r^2 test
+    decides, as in k_forces_f: trimming drops only candidates it would reject."""
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     ddt_kind = DDTK
@@ -1121,23 +1193,100 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, n0
             if clo > chi:
                 continue
             row = (c2 * n1 + c1) * n0
-            jf = start[row + clo]
-            nfl = start[row + chi + 1] - jf
-            jb = start[ncells + row + clo] - nfl
-            m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
+            lo_t = q0 - rr - tpad
+            hi_t = q0 + rr + tpad
             # the row's fluid candidates, then its boundary ones, each in a loop over j of
             # its own (on the H200 one loop over both with a select per candidate is 5 %
             # slower, and a loop over the two parts 4 %)
-            for j in range(jf, jf + nfl):
+            # (both ranges first: fewer values live across the loops, fewer registers)
+            j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
+            b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
+            for j in range(j0, j1):
                 axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
                     pos4, vel4, 4 * j, False, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, support2,
                     prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-            for j in range(jb + nfl, jb + m):
+            for j in range(b0, b1):
                 axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
                     pos4, vel4, 4 * j, True, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb, support2,
                     prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax,
                  ax_, ay_, az_, ar_, ddt_, cancel_, visc_)
+
+
+def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+                a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
+    """k_forces_b (same sums in the same order: boundary destinations, fluid candidates,
+    DBC continuity) with k_forces_fv's record loads, cell ranges and trimmed rows;
+    arguments as k_forces_fv (gx..gz unused)."""
+    prm = cuda.const.array_like(PRMC)
+    kernel_id = KID
+    i = cuda.grid(1) + i0
+    if i >= i1:
+        return
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    d4 = 4 * i
+    xa, ya, za, p_a = load4(pos4, d4)
+    vxa, vya, vza, rho_a = load4(vel4, d4)
+    zero = rho_a - rho_a
+    q0 = xa if a0 == 0 else (ya if a0 == 1 else za)
+    q1 = zero
+    q2 = zero
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    if a1 >= 0:
+        q1 = xa if a1 == 0 else (ya if a1 == 1 else za)
+        lo1 = max(int(math.floor((q1 - pad - o1) * inv_size)), 0)
+        hi1 = min(int(math.floor((q1 + pad - o1) * inv_size)), n1 - 1)
+    if a2 >= 0:
+        q2 = xa if a2 == 0 else (ya if a2 == 1 else za)
+        lo2 = max(int(math.floor((q2 - pad - o2) * inv_size)), 0)
+        hi2 = min(int(math.floor((q2 + pad - o2) * inv_size)), n2 - 1)
+    size = 1.0 / inv_size
+    reach2 = pad * pad
+    arr = zero
+    vmax = zero
+    for c2 in range(lo2, hi2 + 1):
+        d2 = zero
+        if a2 >= 0:
+            d2 = max(zero, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
+        for c1 in range(lo1, hi1 + 1):
+            d1 = zero
+            if a1 >= 0:
+                d1 = max(zero, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
+            rem = reach2 - d1 * d1 - d2 * d2
+            if rem < 0.0:
+                continue
+            rr = math.sqrt(rem)
+            clo = max(0, int(math.floor((q0 - rr - o0) * inv_size)))
+            chi = min(n0 - 1, int(math.floor((q0 + rr - o0) * inv_size)))
+            if clo > chi:
+                continue
+            j0, j1 = _trimmed(pos4, start, (c2 * n1 + c1) * n0, clo, chi, a0, q0 - rr - tpad, q0 + rr + tpad)
+            for j in range(j0, j1):
+                xb, yb, zb, pb = load4(pos4, 4 * j)
+                drx = xa - xb
+                dry = ya - yb
+                drz = za - zb
+                r2 = drx * drx + dry * dry + drz * drz
+                if not (r2 > support2 or r2 < 1e-18):
+                    vxb, vyb, vzb, rho_b = load4(vel4, 4 * j)
+                    fr, fv = bound_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a, rho_b, mf,
+                                        prm, kernel_id)
+                    arr += fr
+                    if fv > vmax:
+                        vmax = fv
+    ax_[i] = zero
+    ay_[i] = zero
+    if a0 >= 0 and a1 >= 0 and a2 >= 0:
+        az_[i] = zero
+    ar_[i] = arr
+    if not final:
+        ddt_[i] = zero
+        cancel_[i] = 0
+    visc_[i] = vmax
 
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
@@ -1298,8 +1447,8 @@ def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_si
 
 
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
-            "k_sort_cells", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
-            "k_dt_terms", "k_check_bounds", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
+            "k_sort_cells", "k_sort_cells_by", "k_gather", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
+            "k_dt_terms", "k_check_bounds", "k_check_init", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
             "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2", "k_compact_perm",
             "k_mig_keep", "k_pack_leaving", "k_unpack_rows", "k_pack_edge", "k_pick4")
 _FAST = {"k_forces", "k_count_pairs", "k_count_pairs2"}
@@ -1329,7 +1478,8 @@ _FORCES: dict = {}
 
 def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | None = None,
                   max_registers: int | None = None) -> types.SimpleNamespace:
-    """k_forces_f / k_forces_b for one run: `prm` (the run's parameter vector) and the
+    """The fluid and boundary force kernels (k_forces_f / k_forces_b, or with FORCES "fv"
+    k_forces_fv / k_forces_bv, under the names k_forces_f / k_forces_b) for one run: `prm` (the run's parameter vector) and the
     options become compile-time constants (cached per distinct set; a new scene or dp
     compiles once more)."""
     dt = np.dtype(dtype)
@@ -1343,7 +1493,7 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
         out = {}
         out["relative"] = FORCES != "f"      # k_forces_fv's arguments
         for name in ("k_forces_f", "k_forces_b"):
-            src = ("k_forces_" + FORCES) if name == "k_forces_f" else name
+            src = name if FORCES == "f" else name + "v"     # fv: k_forces_fv / k_forces_bv
             fn = _clone(globals()[src], dt, memo, extra)
             if SIMULATOR:
                 out[name] = cuda.jit(fn)

@@ -219,4 +219,5 @@ class CudaShifting:
             k = self._on(state, build(dv.dtype))
             k.k_shift_move[CK.blocks(n), CK.BLOCK](n, dv.dim, A["px"], A["py"], A["pz"], sx, sy, sz)
         dv.host_stale = True
+        dv.moved = np.inf          # shifted rows: the force rows are not trimmed until the next sort
         self._sync()

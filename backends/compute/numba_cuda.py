@@ -35,12 +35,17 @@ from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
 from . import cuda_kernels as CK
+from . import cuda_launch as CL
 from .base import ComputeBackend, dt_from_terms
 
 _VEC = ("x", "y", "z")
 # Symplectic: the corrector's forces see the pressure of the predicted density (as
 # numba-cpu and DualSPHysics); False would keep the step-start pressure.
 FRESH_PRESSURE = True
+# Force rows trimmed to the sphere's chord along the rows of cells (cells sorted by that
+# coordinate; k_forces_fv). SPHGRAPH_CUDA_TRIM=0: whole cells, as k_forces_f.
+TRIM = os.environ.get("SPHGRAPH_CUDA_TRIM", "1") != "0"
+TRIM_OFF = 1e30          # tpad that keeps every row whole (finite: fastmath assumes no inf)
 
 
 class DeviceState:
@@ -62,6 +67,7 @@ class DeviceState:
         self.scan_tmp = []
         self.pinned_dt = cuda.pinned_array(3, np.float64) if not CK.SIMULATOR else np.zeros(3)
         self.pinned_chk = cuda.pinned_array(7, np.float64) if not CK.SIMULATOR else np.zeros(7)
+        self.pinned_bad = cuda.pinned_array(1, np.int64) if not CK.SIMULATOR else np.zeros(1, np.int64)
         self.pinned_i4 = cuda.pinned_array(4, np.int32) if not CK.SIMULATOR else np.zeros(4, np.int32)
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
@@ -70,6 +76,7 @@ class DeviceState:
         self.busy_ev = None                         # the event object host_busy reuses
         self.host_stale = False
         self.final = True
+        self.moved = np.inf                         # bound on any row's move since the sort (inf: unsorted)
 
     def __getattr__(self, name):
         d = self.__dict__
@@ -320,6 +327,7 @@ class NumbaCUDA(ComputeBackend):
         return 0 if L is None or L.current is None else L.current
 
     def _on(self, state, kernels):
+        kernels = CL.fast(kernels)
         s = self._s(state)
         return kernels if not s else _OnStream(kernels, s)
 
@@ -580,6 +588,7 @@ class NumbaCUDA(ComputeBackend):
         out = self._rows_to_host(state, dv, k, keep, pos, m, domain)
         k.k_compact_perm[b, CK.BLOCK](keep, pos, n, dv.perm)
         dv.n = n - m
+        dv.moved = np.inf          # rows moved in the arrays: no trimming until the next sort
         dv.nf -= sum(int(np.count_nonzero(o.kind == 0)) for o in out.values())
         self._permute(state, dv, k)
         self._host_rows_changed(state, dv)
@@ -675,6 +684,7 @@ class NumbaCUDA(ComputeBackend):
             A["vmz"], A["vel4"], A["rhom"], A["kind"], A["id"])
         up = nb
         dv.n = n + m
+        dv.moved = np.inf          # rows moved in the arrays: no trimming until the next sort
         dv.nf += int(np.count_nonzero(r.kind == 0))
         if dv.box is not None:      # the next grid must hold the new rows
             dv.box[0, :dim] = np.minimum(dv.box[0, :dim], r.pos.min(axis=0))
@@ -825,12 +835,19 @@ class NumbaCUDA(ComputeBackend):
             # scatter: counts becomes the fill pointer (a copy of start)
             k.k_copy[CK.blocks(nk), CK.BLOCK](start, nk, counts)
             k.k_scatter[CK.blocks(n), CK.BLOCK](dv.keys, n, counts, dv.perm)
-            k.k_sort_cells[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm)
+            # each cell's rows in increasing coordinate along the rows of cells (axes[0]):
+            # the force kernels trim every row of cells to the sphere's chord by bisection
+            key = (dv.px, dv.py, dv.pz)[int(axes[0])] if axes[0] >= 0 else None
+            if key is not None and TRIM:
+                k.k_sort_cells_by[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm, key)
+            else:
+                k.k_sort_cells[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm)
             self._permute(state, dv, k)
         else:
             k.k_fill[CK.blocks(nk + 1), CK.BLOCK](start, nk + 1, 0)
         dv.grid = {"origin": lo, "dims": dims, "axes": axes, "inv": inv, "reach": reach,
                    "ncells": ncells, "size": c.cell_size}
+        dv.moved = 0.0 if TRIM else np.inf        # rows sorted along the cell rows just now
         if n:
             self._pack(state, dv, k, True)
         dv.host_stale = True
@@ -1010,23 +1027,31 @@ class NumbaCUDA(ComputeBackend):
             built = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
                                      int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
-            if nf and built.relative:
+            if built.relative:
                 # cell ranges from the relative positions: origin less the reference point,
                 # support radius padded by the rounding of both (k_forces_fv)
                 rel = [float(origin[k]) - float(dv.ref[axes[k]]) if axes[k] >= 0 else 0.0 for k in range(3)]
                 span = max([abs(x) for x in rel] + [float(dims[k]) / float(inv) for k in range(3)])
                 pad = np.sqrt(state.prm[P_SUPPORT2]) * (1 + 1e-6) + 16 * np.finfo(dv.dtype).eps * span
-                kf.k_forces_f[CK.blocks(nf, FB), FB](
-                    A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]), ft(rel[0]), ft(rel[1]), ft(rel[2]),
-                    ft(inv), ft(pad), int(dims[0]), int(dims[1]), int(dims[2]),
-                    int(axes[0]), int(axes[1]), int(axes[2]), 1 if final else 0,
-                    ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+                # rows trimmed along the cell rows with the sort order stale by at most
+                # 2 * moved (the Symplectic predictor), or not at all (TRIM_OFF)
+                tpad = 2.0 * dv.moved * (1 + 1e-6) + 16 * np.finfo(dv.dtype).eps * span
+                tpad = TRIM_OFF if not np.isfinite(tpad) or tpad > TRIM_OFF else tpad
+                rel_args = (ft(rel[0]), ft(rel[1]), ft(rel[2]), ft(inv), ft(pad), ft(tpad),
+                            int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]),
+                            1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]))
+                if nf:
+                    kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]),
+                                                         *rel_args, *out)
+                if n > nf:
+                    kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], nf, n, start,
+                                                             int(g["ncells"]), *rel_args, *out)
             elif nf:
                 kf.k_forces_f[CK.blocks(nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
                     ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
-            if n > nf:
+            if n > nf and not built.relative:
                 kf.k_forces_b[CK.blocks(n - nf, FB), FB](
                     A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
@@ -1068,17 +1093,16 @@ class NumbaCUDA(ComputeBackend):
         dv = state.extra["dev"]
         k = self._k(state)
         A = dv.A()
-        zero = np.zeros(3)
         s = self._s(state)
-        A["dtout"].copy_to_device(zero, stream=s)
+        k.k_fill[1, 32](A["dtout"], 3, 0.0)       # on the device: no host copy, no host wait
         if dv.n:
             k.k_dt_terms[min(CK.REDUCE_BLOCKS, CK.blocks(dv.n)), 256](
                 A["ax"], A["ay"], A["az"], A["vx"], A["vy"], A["vz"], A["visc"], A["kind"], dv.n, dv.dim, A["dtout"])
         A["dtout"].copy_to_host(dv.pinned_dt, stream=s)     # after the compute lane's forces and reduce
         _wait(s)
-        _count(state, "h2d_bytes", "dt", 24)
         _count(state, "d2h_bytes", "dt", 24)
         a2, v2, vm = (float(x) for x in dv.pinned_dt)
+        dv.vmax = (state.step, np.sqrt(v2))       # the fluid rows' fastest speed (trim slack)
         c = state.consts
         return dt_from_terms(a2, v2, vm, c.h, c.c0, state.cfl)
 
@@ -1103,6 +1127,13 @@ class NumbaCUDA(ComputeBackend):
                 kern[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
                                   A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
                                   A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, rho0)
+            # how far a row may have moved since the sort (k_forces_fv's trim slack): the
+            # predictor moves fluid rows by dt/2 v, the fastest speed known from dt_local
+            vm = dv.__dict__.get("vmax")
+            if integrator != "verlet" and stage == 1 and vm is not None and vm[0] == state.step:
+                dv.moved += 0.5 * float(state.dt) * vm[1]
+            else:
+                dv.moved = np.inf
             if integrator != "verlet" and stage == 1:
                 # the corrector's forces see the predicted positions (build_cells refreshes
                 # them for the next step); pressure: see FRESH_PRESSURE
@@ -1115,9 +1146,7 @@ class NumbaCUDA(ComputeBackend):
         k = self._k(state)
         A = dv.A()
         n, dim = dv.n, dv.dim
-        init = np.array([np.inf] * 3 + [-np.inf] * 3)
-        A["chk_box"].copy_to_device(init)
-        A["chk_bad"].copy_to_device(np.array([np.iinfo(np.int64).max], np.int64))
+        k.k_check_init[1, 1](A["chk_bad"], A["chk_box"])   # on the device: no host copy, no host wait
         lo3 = np.zeros(3)
         hi3 = np.zeros(3)
         lo3[:dim] = lo
@@ -1126,9 +1155,12 @@ class NumbaCUDA(ComputeBackend):
             k.k_check_bounds[min(CK.REDUCE_BLOCKS, CK.blocks(n)), 256](
                 A["px"], A["py"], A["pz"], A["rho"], A["kind"], n, dim, *lo3, *hi3,
                 float(state.rho_min), float(min(state.rho_max, 1e300)), A["chk_bad"], A["chk_box"])
-        box = A["chk_box"].copy_to_host()
-        bad = int(A["chk_bad"].copy_to_host()[0])
-        _count(state, "h2d_bytes", "check", 56)
+        s = self._s(state)
+        A["chk_box"].copy_to_host(dv.pinned_chk[:6], stream=s)
+        A["chk_bad"].copy_to_host(dv.pinned_bad, stream=s)
+        _wait(s)
+        box = dv.pinned_chk[:6].copy()
+        bad = int(dv.pinned_bad[0])
         _count(state, "d2h_bytes", "check", 56)
         if n:
             dv.box = np.array([box[:3], box[3:]])
