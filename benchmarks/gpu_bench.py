@@ -117,7 +117,7 @@ def sweep_blocks(sim, blocks, steps, maxregs=()):
     return out
 
 
-def one(dp, steps, warmup, precision, profile_steps, bare, blocks=(), maxregs=()):
+def one(dp, steps, warmup, precision, profile_steps, bare, blocks=(), maxregs=(), host_profile=False):
     from numba import cuda
     from sphgraph.solver import Simulation
     cuda.synchronize()
@@ -172,6 +172,23 @@ def one(dp, steps, warmup, precision, profile_steps, bare, blocks=(), maxregs=()
         cuda.synchronize()
         wall2 = time.perf_counter() - t0
         wall = min(wall, wall2)
+    host_prof = None
+    if host_profile:
+        # where the host's time goes in timed steps: launching, waiting for the device
+        # (synchronize / copies), the scheduler
+        import cProfile
+        import io
+        import pstats
+        pr = cProfile.Profile()
+        cuda.synchronize()
+        pr.enable()
+        for _ in range(steps):
+            sim.step()
+        cuda.synchronize()
+        pr.disable()
+        buf = io.StringIO()
+        pstats.Stats(pr, stream=buf).sort_stats("tottime").print_stats(30)
+        host_prof = buf.getvalue()
     pairs = sim.compute.count_pairs(st)
     cuda.synchronize()
     sweep = sweep_blocks(sim, blocks, steps, maxregs) if (blocks or maxregs) else None
@@ -201,6 +218,8 @@ def one(dp, steps, warmup, precision, profile_steps, bare, blocks=(), maxregs=()
         "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
         "command": " ".join(sys.argv),
     }
+    if host_prof is not None:
+        out["host_profile"] = host_prof
     if bare_wall is not None:
         out["bare_loop_wall_s"] = bare_wall
         out["scheduler_overhead_share"] = (wall - bare_wall) / wall
@@ -244,6 +263,8 @@ def main(argv=None):
                     help="also time the force kernels at these block sizes (same run)")
     ap.add_argument("--maxreg", type=int, nargs="*", default=[],
                     help="also time the force kernels compiled with these register caps (same run)")
+    ap.add_argument("--host-profile", action="store_true",
+                    help="also profile the host (cProfile) over the timed steps, after timing them")
     a = ap.parse_args(argv)
     res = {"runs": [], "roofline": None}
     try:
@@ -253,11 +274,14 @@ def main(argv=None):
     print(json.dumps(res["roofline"]), flush=True)
     for dp in a.dp:
         try:
-            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare, a.blocks, a.maxreg)
+            r = one(dp, a.steps, a.warmup, a.precision, a.profile_steps, a.bare, a.blocks, a.maxreg,
+                    a.host_profile)
         except Exception as e:  # noqa: BLE001  (e.g. out of memory at the largest size)
             r = {"dp": dp, "error": repr(e)}
         res["runs"].append(r)
-        print(json.dumps(r), flush=True)
+        print(json.dumps({k: v for k, v in r.items() if k != "host_profile"}), flush=True)
+        if r.get("host_profile"):
+            print(r["host_profile"], flush=True)
         if a.json:
             Path(a.json).write_text(json.dumps(res, indent=1))
     return res

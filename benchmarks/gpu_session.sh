@@ -6,7 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
-#         forceab-trim slow-launch tests-quick
+#         forceab-trim forceab-cap hostprof slow-launch tests-quick
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -48,6 +48,13 @@ for s in "$@"; do
     forceab-trim) stage forceab_trim 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants f:64:128 fv:64:128:notrim fv:64:128 fv:80:128 fv:0:128 fv:48:128 \
                 --json "$OUT/force_ab_trim.json" ;;
+    # register caps and block sizes of the trimmed kernels
+    forceab-cap) stage forceab_cap 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants fv:64:128 fv:56:128 fv:48:128 fv:40:128 fv:64:64 fv:64:256 fv:48:256 \
+                --json "$OUT/force_ab_cap.json" ;;
+    # where the host's time goes at 1.1 M (cProfile over 20 timed steps)
+    hostprof) stage hostprof 200 python3 benchmarks/gpu_bench.py --dp 0.01 --steps 20 --warmup 3 --profile-steps 3 \
+                --host-profile --json "$OUT/hostprof.json" ;;
     # numba-cuda's own launch path (SPHGRAPH_CUDA_FAST_LAUNCH=0), to compare with spheric2
     slow-launch) stage slow_launch 300 env SPHGRAPH_CUDA_FAST_LAUNCH=0 python3 benchmarks/gpu_bench.py \
                 --dp 0.01 0.006 --steps 20 --warmup 3 --profile-steps 3 --json "$OUT/slow_launch.json" ;;

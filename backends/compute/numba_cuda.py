@@ -113,7 +113,16 @@ class DeviceState:
         p4 = self.arrays["pos4"]
         if m * np.dtype(dtype).itemsize > p4.nbytes:
             return None
-        return p4.view(dtype)[:m]
+        # kept: a numba view costs tens of microseconds of host time, and the sort asks
+        # for the same few every step
+        c = self.__dict__.setdefault("_scratch", {})
+        key = (id(p4), np.dtype(dtype).str, m)
+        v = c.get(key)
+        if v is None or v[0] is not p4:
+            if len(c) > 32:
+                c.clear()
+            v = c[key] = (p4, p4.view(dtype)[:m])
+        return v[1]
 
     def host_buf(self, nbytes):
         """The first `nbytes` of a reusable page-locked host buffer (uint8; plain numpy in
