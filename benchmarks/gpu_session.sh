@@ -6,7 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
-#         forceab-trim forceab-cap hostprof slow-launch tests-quick
+#         forceab-trim forceab-cap hostprof slow-launch tests-quick final
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -48,6 +48,11 @@ for s in "$@"; do
     forceab-trim) stage forceab_trim 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants f:64:128 fv:64:128:notrim fv:64:128 fv:80:128 fv:0:128 fv:48:128 \
                 --json "$OUT/force_ab_trim.json" ;;
+    # the final tree: the three force variants and SPHERIC 2 at 4.4 M
+    final)    stage final_ab 200 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants f:64:128 fv:64:128:notrim fv:64:128 --json "$OUT/force_ab_final.json"
+              stage final_4m 200 python3 benchmarks/gpu_bench.py --dp 0.006 --steps 50 --warmup 3 --profile-steps 3 \
+                --json "$OUT/spheric2_final.json" ;;
     # register caps and block sizes of the trimmed kernels
     forceab-cap) stage forceab_cap 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants fv:64:128 fv:56:128 fv:48:128 fv:40:128 fv:64:64 fv:64:256 fv:48:256 \

@@ -37,9 +37,10 @@ BLOCK = 256          # threads per block, element-wise kernels
 FORCE_BLOCK = int(os.environ.get("SPHGRAPH_CUDA_FORCE_BLOCK", "128"))   # threads per block, force kernels
 REDUCE_BLOCKS = 512  # blocks of the grid-stride reductions (dt, bounds/check)
 SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK * SCAN_ITEMS)
-# The fluid force kernel: "f" (k_forces_f) or "fv" (k_forces_fv: 16-byte record loads,
-# cell ranges in the run's type, fluid and boundary candidates in loops of their own).
-# Measured on the H200 (SPHERIC 2, 4.4 M; docs/gpu.md): fv 1.11x. A variant with a per-lane
+# The force kernels: "f" (k_forces_f / k_forces_b) or "fv" (k_forces_fv / k_forces_bv:
+# 16-byte record loads, cell ranges in the run's type, fluid and boundary candidates in
+# loops of their own, rows trimmed to the sphere's chord). Measured on the H200 (SPHERIC 2,
+# 4.4 M; docs/gpu.md): fv 1.11x with whole cells, 1.25x trimmed. A variant with a per-lane
 # neighbour queue in shared memory (the pair body run only when every lane had a neighbour)
 # raised the warp's active lanes from 20.7 to 27 of 32 but executed 15-30 % more
 # instructions: 0.6-0.8x, dropped.
@@ -222,7 +223,8 @@ def k_scatter(keys, n, fill, perm):
 
 
 def k_sort_cells(start, ncells, perm):
-    """Rows of each cell in increasing old order: the sort is then stable (as on the CPU)."""
+    """Rows of each cell in increasing old order: the sort is then stable (as on the CPU);
+    used when the cells' rows are not sorted along the rows of cells (TRIM off)."""
     c = cuda.grid(1)
     if c >= ncells:
         return
@@ -1126,6 +1128,51 @@ def _trimmed(pos4, start, base, clo, chi, comp, lo_t, hi_t):
     return j0, j1
 
 
+@njit(inline="always")
+def _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2):
+    """k_forces_fv / k_forces_bv: the destination's coordinate along the rows of cells (q0)
+    and across them (q1, q2), and the cells across the rows within `pad` (lo1..hi1,
+    lo2..hi2; 0..0 for an axis the grid lacks)."""
+    q0 = xa if a0 == 0 else (ya if a0 == 1 else za)
+    q1 = zero
+    q2 = zero
+    lo1 = 0
+    hi1 = 0
+    lo2 = 0
+    hi2 = 0
+    if a1 >= 0:
+        q1 = xa if a1 == 0 else (ya if a1 == 1 else za)
+        lo1 = max(int(math.floor((q1 - pad - o1) * inv_size)), 0)
+        hi1 = min(int(math.floor((q1 + pad - o1) * inv_size)), n1 - 1)
+    if a2 >= 0:
+        q2 = xa if a2 == 0 else (ya if a2 == 1 else za)
+        lo2 = max(int(math.floor((q2 - pad - o2) * inv_size)), 0)
+        hi2 = min(int(math.floor((q2 + pad - o2) * inv_size)), n2 - 1)
+    return q0, q1, q2, lo1, hi1, lo2, hi2
+
+
+@njit(inline="always")
+def _slab_gap(q, o, c, size, zero):
+    """Distance from q to the slab of cell c (origin o, cells of `size`), 0 inside it."""
+    return max(zero, o + c * size - q, q - (o + (c + 1) * size))
+
+
+@njit(inline="always")
+def _row_cut(q0, q1, q2, c1, c2, o0, o1, o2, size, inv_size, reach2, n0, a1, a2, zero):
+    """The row of cells (c1, c2) against a sphere of radius^2 reach2 about (q0, q1, q2):
+    the chord's half length rr along the row and the cells clo..chi it spans (clo > chi:
+    out of reach)."""
+    d1 = _slab_gap(q1, o1, c1, size, zero) if a1 >= 0 else zero
+    d2 = _slab_gap(q2, o2, c2, size, zero) if a2 >= 0 else zero
+    rem = reach2 - d1 * d1 - d2 * d2
+    if rem < 0.0:
+        return zero, 1, 0
+    rr = math.sqrt(rem)
+    clo = max(0, int(math.floor((q0 - rr - o0) * inv_size)))
+    chi = min(n0 - 1, int(math.floor((q0 + rr - o0) * inv_size)))
+    return rr, clo, chi
+
+
 def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """k_forces_f (same sums in the same order) with 16-byte record loads (two a
@@ -1151,21 +1198,7 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     xa, ya, za, p_a = load4(pos4, d4)
     vxa, vya, vza, rho_a = load4(vel4, d4)
     zero = rho_a - rho_a
-    q0 = xa if a0 == 0 else (ya if a0 == 1 else za)
-    q1 = zero
-    q2 = zero
-    lo1 = 0
-    hi1 = 0
-    lo2 = 0
-    hi2 = 0
-    if a1 >= 0:
-        q1 = xa if a1 == 0 else (ya if a1 == 1 else za)
-        lo1 = max(int(math.floor((q1 - pad - o1) * inv_size)), 0)
-        hi1 = min(int(math.floor((q1 + pad - o1) * inv_size)), n1 - 1)
-    if a2 >= 0:
-        q2 = xa if a2 == 0 else (ya if a2 == 1 else za)
-        lo2 = max(int(math.floor((q2 - pad - o2) * inv_size)), 0)
-        hi2 = min(int(math.floor((q2 + pad - o2) * inv_size)), n2 - 1)
+    q0, q1, q2, lo1, hi1, lo2, hi2 = _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2)
     size = 1.0 / inv_size
     reach2 = pad * pad
     inv_rho_a = 1.0 / rho_a
@@ -1177,19 +1210,8 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     cc = 0
     vmax = zero
     for c2 in range(lo2, hi2 + 1):
-        d2 = zero
-        if a2 >= 0:
-            d2 = max(zero, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
         for c1 in range(lo1, hi1 + 1):
-            d1 = zero
-            if a1 >= 0:
-                d1 = max(zero, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
-            rem = reach2 - d1 * d1 - d2 * d2
-            if rem < 0.0:
-                continue
-            rr = math.sqrt(rem)
-            clo = max(0, int(math.floor((q0 - rr - o0) * inv_size)))
-            chi = min(n0 - 1, int(math.floor((q0 + rr - o0) * inv_size)))
+            rr, clo, chi = _row_cut(q0, q1, q2, c1, c2, o0, o1, o2, size, inv_size, reach2, n0, a1, a2, zero)
             if clo > chi:
                 continue
             row = (c2 * n1 + c1) * n0
@@ -1229,39 +1251,14 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     xa, ya, za, p_a = load4(pos4, d4)
     vxa, vya, vza, rho_a = load4(vel4, d4)
     zero = rho_a - rho_a
-    q0 = xa if a0 == 0 else (ya if a0 == 1 else za)
-    q1 = zero
-    q2 = zero
-    lo1 = 0
-    hi1 = 0
-    lo2 = 0
-    hi2 = 0
-    if a1 >= 0:
-        q1 = xa if a1 == 0 else (ya if a1 == 1 else za)
-        lo1 = max(int(math.floor((q1 - pad - o1) * inv_size)), 0)
-        hi1 = min(int(math.floor((q1 + pad - o1) * inv_size)), n1 - 1)
-    if a2 >= 0:
-        q2 = xa if a2 == 0 else (ya if a2 == 1 else za)
-        lo2 = max(int(math.floor((q2 - pad - o2) * inv_size)), 0)
-        hi2 = min(int(math.floor((q2 + pad - o2) * inv_size)), n2 - 1)
+    q0, q1, q2, lo1, hi1, lo2, hi2 = _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2)
     size = 1.0 / inv_size
     reach2 = pad * pad
     arr = zero
     vmax = zero
     for c2 in range(lo2, hi2 + 1):
-        d2 = zero
-        if a2 >= 0:
-            d2 = max(zero, o2 + c2 * size - q2, q2 - (o2 + (c2 + 1) * size))
         for c1 in range(lo1, hi1 + 1):
-            d1 = zero
-            if a1 >= 0:
-                d1 = max(zero, o1 + c1 * size - q1, q1 - (o1 + (c1 + 1) * size))
-            rem = reach2 - d1 * d1 - d2 * d2
-            if rem < 0.0:
-                continue
-            rr = math.sqrt(rem)
-            clo = max(0, int(math.floor((q0 - rr - o0) * inv_size)))
-            chi = min(n0 - 1, int(math.floor((q0 + rr - o0) * inv_size)))
+            rr, clo, chi = _row_cut(q0, q1, q2, c1, c2, o0, o1, o2, size, inv_size, reach2, n0, a1, a2, zero)
             if clo > chi:
                 continue
             j0, j1 = _trimmed(pos4, start, (c2 * n1 + c1) * n0, clo, chi, a0, q0 - rr - tpad, q0 + rr + tpad)
