@@ -6,7 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
-#         forceab-trim forceab-cap hostprof slow-launch tests-quick final
+#         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -53,6 +53,9 @@ for s in "$@"; do
                 --variants f:64:128 fv:64:128:notrim fv:64:128 --json "$OUT/force_ab_final.json"
               stage final_4m 200 python3 benchmarks/gpu_bench.py --dp 0.006 --steps 50 --warmup 3 --profile-steps 3 \
                 --json "$OUT/spheric2_final.json" ;;
+    # SPHERIC 2 at 4.4 and 13 M, 30 timed steps (a short check of a tree)
+    check-4m) stage check_4m 120 python3 benchmarks/gpu_bench.py --dp 0.006 0.004 --steps 30 --warmup 3 \
+                --profile-steps 2 --json "$OUT/spheric2_check.json" ;;
     # register caps and block sizes of the trimmed kernels
     forceab-cap) stage forceab_cap 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
                 --variants fv:64:128 fv:56:128 fv:48:128 fv:40:128 fv:64:64 fv:64:256 fv:48:256 \

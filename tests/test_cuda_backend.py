@@ -175,6 +175,7 @@ FORCES_SCRIPT = textwrap.dedent('''
     for v in ("f", "fv"):
         CK.FORCES = v
         dv.A()["ar"].copy_to_device(np.full(dv.n, np.nan))   # poison: every row must be written
+        dv.A()["visc"].copy_to_device(np.zeros(1))           # the viscous maximum, from this call only
         sim.compute.forces(st, "interior")
         A = dv.A()
         res[v] = [A[k].copy_to_host()[:dv.n] for k in ("ax", "ay", "az", "ar", "visc")]

@@ -80,6 +80,7 @@ def _clone(f, dtype, memo, extra=None):
         remap = F32_REMAP.get(f.__name__) if np.dtype(dtype) == np.float32 else None
         code = _cast_consts(code, np.dtype(dtype).type, remap)
     g = dict(f.__globals__)
+    g["RT"] = np.dtype(dtype).type            # the run's float type (shared arrays)
     g.update(extra or {})
     for name in code.co_names:
         v = g.get(name)
@@ -301,8 +302,8 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
     diffusion unless cancelled) into ax/ay/az/ar/visc; final=0: a partial buffer.
     """
     i = cuda.grid(1)
-    if i >= n:
-        return
+    i = min(i, n - 1)     # a block's spare threads repeat the last row (same values, same
+    #                       stores) so that every thread reaches the block maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     mb = prm[P_MASS_B]
@@ -431,14 +432,26 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
         ar_[i] = arr
         ddt_[i] = dd
         cancel_[i] = cc
-    visc_[i] = vmax
+    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
+    # device function: the simulator runs cuda.* only in kernel bodies)
+    sh = cuda.shared.array(1, RT)
+    if cuda.threadIdx.x == 0:
+        sh[0] = vmax
+    cuda.syncthreads()
+    if vmax > sh[0]:
+        cuda.atomic.max(sh, 0, vmax)
+    cuda.syncthreads()
+    if cuda.threadIdx.x == 0:
+        cuda.atomic.max(visc_, 0, sh[0])
 
 
 def k_reduce(nparts, n, dim, kind, gx, gy, gz,
-             x0, y0, z0, r0, d0, c0, v0, x1, y1, z1, r1, d1, c1, v1, x2, y2, z2, r2, d2, c2, v2,
-             ax_, ay_, az_, ar_, visc_):
+             x0, y0, z0, r0, d0, c0, x1, y1, z1, r1, d1, c1, x2, y2, z2, r2, d2, c2,
+             ax_, ay_, az_, ar_):
     """Partial buffers summed in their fixed order (interior, halo 1, halo 2), as
-    cpu_kernels.reduce_parts: gravity on fluid, diffusion unless any part cancelled it."""
+    cpu_kernels.reduce_parts: gravity on fluid, diffusion unless any part cancelled it
+    (the viscous-dt maximum needs no reduction: every part's kernel takes it into one
+    scalar)."""
     i = cuda.grid(1)
     if i >= n:
         return
@@ -449,9 +462,6 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
     s = zero + r0[i]
     dd = zero + d0[i]
     cc = c0[i]
-    v = zero
-    if v0[i] > v:
-        v = v0[i]
     if dim == 3:
         sz = zero + z0[i]
     if nparts > 1:
@@ -462,8 +472,6 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
         s += r1[i]
         dd += d1[i]
         cc |= c1[i]
-        if v1[i] > v:
-            v = v1[i]
     if nparts > 2:
         sx += x2[i]
         sy += y2[i]
@@ -472,8 +480,6 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
         s += r2[i]
         dd += d2[i]
         cc |= c2[i]
-        if v2[i] > v:
-            v = v2[i]
     if kind[i] == 0:
         ax_[i] = sx + gx
         ay_[i] = sy + gy
@@ -485,12 +491,12 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
         if dim == 3:
             az_[i] = zero * sz
     ar_[i] = s + (dd if cc == 0 else zero * dd)
-    visc_[i] = v
 
 
 def k_dt_terms(ax, ay, az, vx, vy, vz, visc, kind, n, dim, out):
-    """max |a|^2 and |v|^2 over fluid rows, max visc over all rows: block maxima, then
-    one atomic per block into out[0:3] (zeroed by the caller)."""
+    """max |a|^2 and |v|^2 over fluid rows (block maxima, then one atomic per block into
+    out[0:3], zeroed by the caller), and the viscous term's maximum over all rows, which
+    the force kernels left in visc[0]."""
     sh = cuda.shared.array((3, 256), dtype=np.float64)
     t = cuda.threadIdx.x
     a2m = 0.0
@@ -498,9 +504,9 @@ def k_dt_terms(ax, ay, az, vx, vy, vz, visc, kind, n, dim, out):
     vm = 0.0
     i = cuda.grid(1)
     stride = cuda.gridsize(1)
+    if i == 0:
+        vm = visc[0]
     while i < n:
-        if visc[i] > vm:
-            vm = visc[i]
         if kind[i] == 0:
             a2 = ax[i] * ax[i] + ay[i] * ay[i]
             v2 = vx[i] * vx[i] + vy[i] * vy[i]
@@ -933,8 +939,8 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
     ddt_kind = DDTK
     laminar = LAM
     i = cuda.grid(1) + i0
-    if i >= i1:
-        return
+    i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
+    #                       stores) so that every thread reaches the block maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     mb = prm[P_MASS_B]
@@ -1039,13 +1045,22 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                     cc |= fc
                     if fv > vmax:
                         vmax = fv
-    _store_fluid(i, final, dim == 3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax,
-                 ax_, ay_, az_, ar_, ddt_, cancel_, visc_)
+    _store_fluid(i, final, dim == 3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, ax_, ay_, az_, ar_, ddt_, cancel_)
+    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
+    # device function: the simulator runs cuda.* only in kernel bodies)
+    sh = cuda.shared.array(1, RT)
+    if cuda.threadIdx.x == 0:
+        sh[0] = vmax
+    cuda.syncthreads()
+    if vmax > sh[0]:
+        cuda.atomic.max(sh, 0, vmax)
+    cuda.syncthreads()
+    if cuda.threadIdx.x == 0:
+        cuda.atomic.max(visc_, 0, sh[0])
 
 
 @njit(inline="always")
-def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax, ax_, ay_, az_, ar_, ddt_,
-                 cancel_, visc_):
+def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, ax_, ay_, az_, ar_, ddt_, cancel_):
     """Fluid row i's sums out (k_forces_f, k_forces_fv): with `final` (one part) the reduced
     result (gravity, diffusion unless a neighbour cancelled it), else the part's raw sums."""
     if final:
@@ -1062,7 +1077,6 @@ def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax, a
         ar_[i] = arr
         ddt_[i] = dd
         cancel_[i] = cc
-    visc_[i] = vmax
 
 
 @njit(inline="always")
@@ -1189,8 +1203,8 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     ddt_kind = DDTK
     laminar = LAM
     i = cuda.grid(1) + i0
-    if i >= i1:
-        return
+    i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
+    #                       stores) so that every thread reaches the block maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     mb = prm[P_MASS_B]
@@ -1223,16 +1237,33 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             # (both ranges first: fewer values live across the loops, fewer registers)
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
-            for j in range(j0, j1):
+            # while loops over the record offset: numba's range() lowers to a trip count
+            # and a second 64-bit counter (8 loop-control instructions a candidate, 4 here)
+            j4 = 4 * j0
+            while j4 < 4 * j1:
                 axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-                    pos4, vel4, 4 * j, False, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, support2,
+                    pos4, vel4, j4, False, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, support2,
                     prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-            for j in range(b0, b1):
+                j4 += 4
+            j4 = 4 * b0
+            while j4 < 4 * b1:
                 axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-                    pos4, vel4, 4 * j, True, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb, support2,
+                    pos4, vel4, j4, True, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb, support2,
                     prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-    _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc, vmax,
-                 ax_, ay_, az_, ar_, ddt_, cancel_, visc_)
+                j4 += 4
+    _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
+                 ax_, ay_, az_, ar_, ddt_, cancel_)
+    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
+    # device function: the simulator runs cuda.* only in kernel bodies)
+    sh = cuda.shared.array(1, RT)
+    if cuda.threadIdx.x == 0:
+        sh[0] = vmax
+    cuda.syncthreads()
+    if vmax > sh[0]:
+        cuda.atomic.max(sh, 0, vmax)
+    cuda.syncthreads()
+    if cuda.threadIdx.x == 0:
+        cuda.atomic.max(visc_, 0, sh[0])
 
 
 def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
@@ -1243,8 +1274,8 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     i = cuda.grid(1) + i0
-    if i >= i1:
-        return
+    i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
+    #                       stores) so that every thread reaches the block maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     d4 = 4 * i
@@ -1262,19 +1293,21 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             if clo > chi:
                 continue
             j0, j1 = _trimmed(pos4, start, (c2 * n1 + c1) * n0, clo, chi, a0, q0 - rr - tpad, q0 + rr + tpad)
-            for j in range(j0, j1):
-                xb, yb, zb, pb = load4(pos4, 4 * j)
+            j4 = 4 * j0
+            while j4 < 4 * j1:      # a while loop over the record offset, as in k_forces_fv
+                xb, yb, zb, pb = load4(pos4, j4)
                 drx = xa - xb
                 dry = ya - yb
                 drz = za - zb
                 r2 = drx * drx + dry * dry + drz * drz
                 if not (r2 > support2 or r2 < 1e-18):
-                    vxb, vyb, vzb, rho_b = load4(vel4, 4 * j)
+                    vxb, vyb, vzb, rho_b = load4(vel4, j4)
                     fr, fv = bound_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a, rho_b, mf,
                                         prm, kernel_id)
                     arr += fr
                     if fv > vmax:
                         vmax = fv
+                j4 += 4
     ax_[i] = zero
     ay_[i] = zero
     if a0 >= 0 and a1 >= 0 and a2 >= 0:
@@ -1283,7 +1316,17 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     if not final:
         ddt_[i] = zero
         cancel_[i] = 0
-    visc_[i] = vmax
+    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
+    # device function: the simulator runs cuda.* only in kernel bodies)
+    sh = cuda.shared.array(1, RT)
+    if cuda.threadIdx.x == 0:
+        sh[0] = vmax
+    cuda.syncthreads()
+    if vmax > sh[0]:
+        cuda.atomic.max(sh, 0, vmax)
+    cuda.syncthreads()
+    if cuda.threadIdx.x == 0:
+        cuda.atomic.max(visc_, 0, sh[0])
 
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
@@ -1294,8 +1337,8 @@ def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     i = cuda.grid(1) + i0
-    if i >= i1:
-        return
+    i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
+    #                       stores) so that every thread reaches the block maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     lo0 = 0
@@ -1386,7 +1429,17 @@ def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
     if not final:
         ddt_[i] = zero
         cancel_[i] = 0
-    visc_[i] = vmax
+    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
+    # device function: the simulator runs cuda.* only in kernel bodies)
+    sh = cuda.shared.array(1, RT)
+    if cuda.threadIdx.x == 0:
+        sh[0] = vmax
+    cuda.syncthreads()
+    if vmax > sh[0]:
+        cuda.atomic.max(sh, 0, vmax)
+    cuda.syncthreads()
+    if cuda.threadIdx.x == 0:
+        cuda.atomic.max(visc_, 0, sh[0])
 
 
 def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_size, n0, n1, n2,

@@ -92,10 +92,9 @@ class DeviceState:
 
     def make_views(self):
         """Per-component views of the packed records, and the aliases that keep the
-        footprint down: `visc` and `perm` share one buffer (perm is dead between the
-        sort and the next sort, visc lives from the forces to dt), the cell keys live in
-        `ax` (dead during the sort), and pos4 (rebuilt after each sort) is the sort's
-        gather scratch and holds the histogram when it fits."""
+        footprint down: the sort's permutation lives in `ar` and the cell keys in `ax`
+        (both dead from the integration to the next forces), and pos4 (rebuilt after each
+        sort) is the sort's gather scratch and holds the histogram when it fits."""
         a, v = self.arrays, self.views
         v4, p4 = a["vel4"], a["pos4"]
         n = p4.shape[0] // 4
@@ -104,8 +103,7 @@ class DeviceState:
             v["r" + ax] = _every4(p4, k)
         v["rho"] = _every4(v4, 3)
         v["press"] = _every4(p4, 3)
-        v["visc"] = a["raw"]
-        v["perm"] = a["raw"].view(np.int32)[:n]
+        v["perm"] = a["ar"].view(np.int32)[:n]
         v["keys"] = a["ax"].view(np.int32)[:n]
 
     def scratch(self, dtype, m):
@@ -487,7 +485,9 @@ class NumbaCUDA(ComputeBackend):
         for ax in _VEC[dim:]:
             dv.arrays["a" + ax] = cuda.device_array(1, dt)
         dv.arrays["ar"] = cuda.device_array(n, dt)
-        dv.arrays["raw"] = cuda.device_array(n, dt)          # visc, and perm during the sort
+        # the viscous-dt term: one maximum (the force kernels' block maxima), zeroed after
+        # each stage's integration
+        dv.arrays["visc"] = cuda.to_device(np.zeros(1, dt))
         dv.make_views()
         dv.arrays["dtout"] = cuda.device_array(3, np.float64)
         dv.arrays["chk_bad"] = cuda.device_array(1, np.int64)
@@ -1021,9 +1021,9 @@ class NumbaCUDA(ComputeBackend):
                 buf = {"x": cuda.device_array(m, dv.dtype), "y": cuda.device_array(m, dv.dtype),
                        "z": cuda.device_array(m if dim == 3 else 1, dv.dtype),
                        "ar": cuda.device_array(m, dv.dtype), "ddt": cuda.device_array(m, dv.dtype),
-                       "cancel": cuda.device_array(m, np.int8), "visc": cuda.device_array(m, dv.dtype)}
+                       "cancel": cuda.device_array(m, np.int8)}
                 dv.parts[part] = buf
-            out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], buf["visc"])
+            out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
@@ -1088,14 +1088,14 @@ class NumbaCUDA(ComputeBackend):
         nparts = len([p for p in ("interior", "halo_1", "halo_2") if p in dv.parts])
         flat = []
         for b in bufs:
-            flat += [b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"], b["visc"]]
+            flat += [b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
         gvec = np.zeros(3)
         gvec[:dv.dim] = state.consts.gravity
         ft = dv.dtype.type
         A = dv.A()
         if dv.n:
             k.k_reduce[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]),
-                                                 ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"], A["visc"])
+                                                 ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"])
         self._sync()
 
     def dt_local(self, state) -> float:
@@ -1147,6 +1147,7 @@ class NumbaCUDA(ComputeBackend):
                 # the corrector's forces see the predicted positions (build_cells refreshes
                 # them for the next step); pressure: see FRESH_PRESSURE
                 self._pack(state, dv, k, FRESH_PRESSURE)
+        k.k_fill[1, 32](A["visc"], 1, 0.0)   # the next stage's forces start the viscous maximum anew
         dv.host_stale = True
         self._sync()
 
