@@ -846,8 +846,8 @@ class NumbaCUDA(ComputeBackend):
             k.k_scatter[CK.blocks(n), CK.BLOCK](dv.keys, n, counts, dv.perm)
             # each cell's rows in increasing coordinate along the rows of cells (axes[0]):
             # the force kernels trim every row of cells to the sphere's chord by bisection
-            key = (dv.px, dv.py, dv.pz)[int(axes[0])] if axes[0] >= 0 else None
-            if key is not None and TRIM:
+            key = (dv.px, dv.py, dv.pz)[int(axes[0])] if axes[0] >= 0 and TRIM else None
+            if key is not None:
                 k.k_sort_cells_by[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm, key)
             else:
                 k.k_sort_cells[CK.blocks(nk), CK.BLOCK](start, nk, dv.perm)
@@ -856,7 +856,8 @@ class NumbaCUDA(ComputeBackend):
             k.k_fill[CK.blocks(nk + 1), CK.BLOCK](start, nk + 1, 0)
         dv.grid = {"origin": lo, "dims": dims, "axes": axes, "inv": inv, "reach": reach,
                    "ncells": ncells, "size": c.cell_size}
-        dv.moved = 0.0 if TRIM else np.inf        # rows sorted along the cell rows just now
+        # rows sorted along the cell rows just now (or trimming off until they are)
+        dv.moved = 0.0 if (TRIM and axes[0] >= 0) else np.inf
         if n:
             self._pack(state, dv, k, True)
         dv.host_stale = True
