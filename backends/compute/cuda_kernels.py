@@ -1080,6 +1080,20 @@ def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, ax_, ay
 
 
 @njit(inline="always")
+def _store_boundary(i, final, dim3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_):
+    """Boundary row i's sums out (k_forces_b, k_forces_bv): no acceleration, the density
+    rate; a partial buffer also gets no diffusion and no cancel."""
+    ax_[i] = zero
+    ay_[i] = zero
+    if dim3:
+        az_[i] = zero
+    ar_[i] = arr
+    if not final:
+        ddt_[i] = zero
+        cancel_[i] = 0
+
+
+@njit(inline="always")
 def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2, prm,
              kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
     """k_forces_fv's test and pair body for the record at j4: the sums (axx .. vmax) with
@@ -1308,14 +1322,7 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
                     if fv > vmax:
                         vmax = fv
                 j4 += 4
-    ax_[i] = zero
-    ay_[i] = zero
-    if a0 >= 0 and a1 >= 0 and a2 >= 0:
-        az_[i] = zero
-    ar_[i] = arr
-    if not final:
-        ddt_[i] = zero
-        cancel_[i] = 0
+    _store_boundary(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
     # device function: the simulator runs cuda.* only in kernel bodies)
     sh = cuda.shared.array(1, RT)
@@ -1421,14 +1428,7 @@ def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                     arr += fr
                     if fv > vmax:
                         vmax = fv
-    ax_[i] = zero
-    ay_[i] = zero
-    if dim == 3:
-        az_[i] = zero
-    ar_[i] = arr
-    if not final:
-        ddt_[i] = zero
-        cancel_[i] = 0
+    _store_boundary(i, final, dim == 3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
     # device function: the simulator runs cuda.* only in kernel bodies)
     sh = cuda.shared.array(1, RT)

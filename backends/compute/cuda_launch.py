@@ -72,13 +72,17 @@ def _core_stream(stream):
 
 
 def _config(grid, block):
+    """The cuda.core launch configuration of (grid, block) as the launch gave them (ints or
+    tuples), built once."""
     c = _CONFIGS.get((grid, block))
     if c is None:
         from cuda.core import LaunchConfig
+        g = (grid, 1, 1) if isinstance(grid, int) else tuple(grid)
+        b = (block, 1, 1) if isinstance(block, int) else tuple(block)
         try:
-            c = LaunchConfig(grid=grid, block=block, shmem_size=0, is_cooperative=False)
+            c = LaunchConfig(grid=g, block=b, shmem_size=0, is_cooperative=False)
         except TypeError:        # cuda.core < 1.0
-            c = LaunchConfig(grid=grid, block=block, shmem_size=0, cooperative_launch=False)
+            c = LaunchConfig(grid=g, block=b, shmem_size=0, cooperative_launch=False)
         _CONFIGS[(grid, block)] = c
     return c
 
@@ -139,10 +143,7 @@ class FastKernel:
                 kargs.append(v)
             else:
                 kargs.append(c(v))
-        grid, block = cfg[0], cfg[1]
-        grid = (grid, 1, 1) if type(grid) is int else tuple(grid)
-        block = (block, 1, 1) if type(block) is int else tuple(block)
-        _launch()(_core_stream(cfg[2] if len(cfg) > 2 else 0), _config(grid, block), kernel, *kargs)
+        _launch()(_core_stream(cfg[2] if len(cfg) > 2 else 0), _config(cfg[0], cfg[1]), kernel, *kargs)
         launches["fast"] += 1
 
 

@@ -77,6 +77,7 @@ class DeviceState:
         self.host_stale = False
         self.final = True
         self.moved = np.inf                         # bound on any row's move since the sort (inf: unsorted)
+        self.vmax = None                            # (step, fluid rows' fastest speed) from dt_local
 
     def __getattr__(self, name):
         d = self.__dict__
@@ -1031,9 +1032,6 @@ class NumbaCUDA(ComputeBackend):
         if n and part == "interior":
             g = dv.grid
             nf, FB = dv.nf, CK.FORCE_BLOCK
-            geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
-                   int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
-                   dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
             built = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
                                      int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
@@ -1056,14 +1054,18 @@ class NumbaCUDA(ComputeBackend):
                 if n > nf:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], nf, n, start,
                                                              int(g["ncells"]), *rel_args, *out)
-            elif nf:
-                kf.k_forces_f[CK.blocks(nf, FB), FB](
-                    A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
-                    int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
-                    ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
-            if n > nf and not built.relative:
-                kf.k_forces_b[CK.blocks(n - nf, FB), FB](
-                    A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
+            else:           # k_forces_f / k_forces_b (SPHGRAPH_CUDA_FORCES=f)
+                geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
+                       int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]),
+                       int(reach), dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
+                if nf:
+                    kf.k_forces_f[CK.blocks(nf, FB), FB](
+                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
+                        int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
+                        ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+                if n > nf:
+                    kf.k_forces_b[CK.blocks(n - nf, FB), FB](
+                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
             k.k_forces[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
@@ -1139,9 +1141,8 @@ class NumbaCUDA(ComputeBackend):
                                   A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, rho0)
             # how far a row may have moved since the sort (k_forces_fv's trim slack): the
             # predictor moves fluid rows by dt/2 v, the fastest speed known from dt_local
-            vm = dv.__dict__.get("vmax")
-            if integrator != "verlet" and stage == 1 and vm is not None and vm[0] == state.step:
-                dv.moved += 0.5 * float(state.dt) * vm[1]
+            if integrator != "verlet" and stage == 1 and dv.vmax is not None and dv.vmax[0] == state.step:
+                dv.moved += 0.5 * float(state.dt) * dv.vmax[1]
             else:
                 dv.moved = np.inf
             if integrator != "verlet" and stage == 1:
