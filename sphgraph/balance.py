@@ -240,7 +240,8 @@ class Balancer:
             sync(st)
         x = st.particles.pos[st.particles.kind == FLUID, self.axis]
         n_own = len(x)
-        n_halo = sum(int(np.count_nonzero(h.kind == FLUID)) for h in st.halos.values() if h is not None)
+        n_halo = sum(int(h.n_fluid) if getattr(h, "n_fluid", None) is not None    # a device halo (ipc)
+                     else int(np.count_nonzero(h.kind == FLUID)) for h in st.halos.values() if h is not None)
         steps = max(self.steps_since.get(ctx.rank, self.cfg.every), 1)
         fsec = self.force_s.pop(ctx.rank, 0.0) / steps
         self.steps_since[ctx.rank] = self.cfg.every

@@ -41,6 +41,10 @@ def _run_flags(p):
     p.add_argument("--watchdog", type=float, metavar="SECONDS",
                    help="stop every rank when one waits longer than SECONDS in a receive or collective "
                         "(MPI: default 120, 0 = off; mock: virtual seconds, off by default)")
+    p.add_argument("--halo-transport", metavar="staged|ipc",
+                   help="how halos travel between GPU ranks (numba-cuda): staged through the host "
+                        "(default; works anywhere) or ipc, device to device (CUDA IPC handles, ranks "
+                        "of one host)")
     # load balancing (sphgraph.balance): these flags > the scene's [balance] > the schedule's [rebalance]
     p.add_argument("--rebalance-every", type=_balance_value("every", int), metavar="K",
                    help="check the balance every K steps (schedule default 50)")
@@ -219,7 +223,7 @@ def _comm_options(args):
     for flag in ("duplicate", "loss"):
         if getattr(args, flag, None) is not None:
             opts[flag] = _faults(flag, getattr(args, flag))
-    for flag in ("seed", "watchdog"):
+    for flag in ("seed", "watchdog", "halo_transport"):
         if getattr(args, flag, None) is not None:
             opts[flag] = getattr(args, flag)
     return opts

@@ -35,6 +35,7 @@ class RankContext:
     fixed_dt: float | None = None
     balancer: object = None
     scene: object = None
+    halo_transport: str = "staged"   # the comm backend's: "staged" (through the host) or "ipc"
 
     def force_buffer(self, name: str):
         """A zeroed partial force buffer `name` for a user task that accumulates into

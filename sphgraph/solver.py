@@ -89,6 +89,10 @@ class Simulation:
         self.stages = 1 if phys.integrator == "verlet" else 2
         self.comm = comm_cls(ranks=ranks, **(comm_options or {}))
         self.nranks = self.comm.size
+        self.halo_transport = getattr(self.comm, "halo_transport", "staged")
+        if self.halo_transport == "ipc" and backend != "numba-cuda":
+            raise InputError(f"--halo-transport ipc: needs --backend numba-cuda (halos device to device), "
+                             f"got --backend {backend}")
         self.balance_cfg = BalanceConfig.resolve(self.schedule.rebalance, scene.extra.get("balance"),
                                                  balance, source=scene.source,
                                                  schedule_source=self.schedule.source)
@@ -149,7 +153,7 @@ class Simulation:
             self.contexts.append(RankContext(rank=r, state=st, compute=self.compute,
                                              comm=self.comm.endpoint(r), domain=dom,
                                              integrator=self.integrator, fixed_dt=fixed_dt, scene=scene,
-                                             balancer=bal))
+                                             balancer=bal, halo_transport=self.halo_transport))
         if self.rebalance and self.balance_cfg.policy == "memory":
             self._attach_capacity(scene)
         self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,

@@ -8,6 +8,10 @@ Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`)
   schedules           every shipped schedule, each also with halo_order reversed, gives
                       bit-identical particles (STEPS_SCHED steps, 2D)
   conformance         the comm conformance behaviours (tests/test_comm_conformance.py)
+  cuda-ipc            GPU only: the 3D dam break (numba-cuda, float64, Symplectic, push 2 m/s)
+                      with --halo-transport staged and ipc; ipc must give the staged bits,
+                      both the single-rank numba-cuda run to TOL, and no halo bytes may
+                      cross the bus with ipc (per-rank bytes_by_kind)
 Exit code 0 when every check passed on every rank, 1 otherwise.
 """
 from __future__ import annotations
@@ -121,7 +125,49 @@ def check_conformance():
             "behaviours": [n for n, _ in tc.behaviours()]}
 
 
+def check_cuda_ipc(steps=20):
+    from mpi4py import MPI
+
+    from sphgraph import Simulation
+    comm = MPI.COMM_WORLD
+    sc = scene("3d").with_overrides(dp=0.02, integrator="symplectic")
+    got, kinds = {}, {}
+    for tr in ("staged", "ipc"):
+        sim = Simulation(sc, backend="numba-cuda", precision="float64", comm="mpi", decomposition_axis="x",
+                         comm_options={"halo_transport": tr})
+        for c in sim.contexts:
+            p = c.state.particles
+            p.vel[p.kind == 0, 0] += 2.0
+            p.vel_m1[p.kind == 0, 0] += 2.0
+            sim.compute.prepare(c.state)
+        for _ in range(steps):
+            sim.step()
+        got[tr] = sim.frame_arrays()
+        kinds[tr] = comm.gather(dict(sim.contexts[0].state.extra.get("bytes_by_kind", {})), root=0)
+    if comm.rank != 0:
+        return None
+    ref_sim = Simulation(sc, backend="numba-cuda", precision="float64", comm="single")
+    p = ref_sim.contexts[0].state.particles
+    p.vel[p.kind == 0, 0] += 2.0
+    p.vel_m1[p.kind == 0, 0] += 2.0
+    ref_sim.compute.prepare(ref_sim.contexts[0].state)
+    for _ in range(steps):
+        ref_sim.step()
+    ref = ref_sim.frame_arrays()
+    span = float(np.max(np.asarray(sc.domain_max) - np.asarray(sc.domain_min)))
+    a, b = got["staged"], got["ipc"]
+    same = all(np.array_equal(a[k], b[k]) for k in ("id", "position", "velocity", "density"))
+    err = float(np.abs(b["position"] - ref["position"]).max()) if np.array_equal(b["id"], ref["id"]) else np.inf
+    d2d = [k.get("d2d:halo", 0) for k in kinds["ipc"]]
+    ok = same and err <= TOL * span and all(k.get("h2d:halo", 0) == 0 for k in kinds["ipc"]) and min(d2d) > 0
+    return {"check": "cuda-ipc", "ok": bool(ok), "ranks": comm.size, "steps": steps, "particles": int(len(b["id"])),
+            "ipc_equals_staged": bool(same), "rel_err": err / span, "d2d_halo": d2d,
+            "staged_h2d_halo": [k.get("h2d:halo", 0) for k in kinds["staged"]],
+            "ipc_bytes_by_kind": kinds["ipc"]}
+
+
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
+          "cuda-ipc": check_cuda_ipc,
           "equiv2d-migrating": lambda: check_equiv("2d", 2.0),
           "schedules": check_schedules, "conformance": check_conformance}
 

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import time
 
-from sphgraph.errors import CommError
+from sphgraph.errors import CommError, InputError
+
+HALO_TRANSPORTS = ("staged", "ipc")
 
 
 class CommBackend:
@@ -21,8 +23,14 @@ class CommBackend:
     name = "base"
     virtual_time = False   # True when task times are simulated seconds
 
-    def __init__(self, ranks: int = 1, **options):
+    def __init__(self, ranks: int = 1, halo_transport: str = "staged", **options):
         self.size = ranks
+        if halo_transport not in HALO_TRANSPORTS:
+            raise InputError(f"--halo-transport: expected one of {', '.join(HALO_TRANSPORTS)}, "
+                             f"got {halo_transport!r}")
+        # how halos travel between device-resident ranks: through the host (MPI or the
+        # mock's copy) or device to device (CUDA IPC between processes; backends/compute/cuda_halo)
+        self.halo_transport = halo_transport
 
     @property
     def local_ranks(self) -> list[int]:

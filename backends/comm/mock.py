@@ -103,6 +103,8 @@ def payload_nbytes(payload) -> int:
     """Bytes of the numpy arrays a payload carries (Halo, Particles, array, None)."""
     if payload is None:
         return 0
+    if hasattr(payload, "to_wire"):      # a device edge (cuda_halo): the rows move device to device
+        return int(payload.nbytes())
     if isinstance(payload, np.ndarray):
         return int(payload.nbytes)
     if hasattr(payload, "__dict__"):
@@ -408,12 +410,12 @@ class MockComm(CommBackend):
 
     def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
                  delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None,
-                 duplicate=0.0, loss=0.0, watchdog=0.0, **options):
+                 duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="staged", **options):
         if options:
             raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
                              "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs, "
-                             "duplicate, loss, watchdog")
-        super().__init__(ranks)
+                             "duplicate, loss, watchdog, halo_transport")
+        super().__init__(ranks, halo_transport)
         if timing not in ("model", "wall"):
             raise InputError(f"--comm mock: timing: expected 'model' or 'wall', got {timing!r}")
         if mode not in ("execute", "predict"):

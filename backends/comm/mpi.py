@@ -50,11 +50,12 @@ def _mpi():
     return MPI
 
 
-# payload types and their arrays, in wire order
-_NONE, _HALO, _PARTICLES, _ARRAY = 0, 1, 2, 3
+# payload types and their arrays, in wire order (_WIRE: an object that packs itself,
+# cuda_halo.DeviceEdge of --halo-transport ipc, one uint8 array)
+_NONE, _HALO, _PARTICLES, _ARRAY, _WIRE = 0, 1, 2, 3, 4
 _FIELDS = {_HALO: ("pos", "vel", "rho", "kind"),
            _PARTICLES: ("id", "kind", "pos", "vel", "rho", "vel_m1", "rho_m1"),
-           _ARRAY: ("a",)}
+           _ARRAY: ("a",), _WIRE: ("a",)}
 _DTYPES = [np.dtype(x) for x in ("<f8", "<f4", "<i8", "<i4", "|i1", "|u1", "<i2", "|b1")]
 _DCODE = {d: i for i, d in enumerate(_DTYPES)}
 
@@ -70,17 +71,22 @@ def _kind_of(payload) -> int:
         return _PARTICLES
     if isinstance(payload, np.ndarray):
         return _ARRAY
+    if hasattr(payload, "to_wire"):
+        return _WIRE
     raise TypeError(f"--comm mpi: cannot send a {type(payload).__name__}")
 
 
 _HEAD = 3   # int64 words before the per-array entries: type, nfields, seq
 
 
-def pack(payload, seq: int = 0) -> np.ndarray:
+def pack(payload, seq: int = 0, dest: int | None = None) -> np.ndarray:
     """One uint8 buffer: int64 header [type, nfields, seq, (dtype, ndim, d0, d1) * nfields], data."""
     kind = _kind_of(payload)
     names = _FIELDS.get(kind, ())
-    arrays = [np.ascontiguousarray(payload if kind == _ARRAY else getattr(payload, f)) for f in names]
+    if kind == _WIRE:
+        arrays = [payload.to_wire(dest)]
+    else:
+        arrays = [np.ascontiguousarray(payload if kind == _ARRAY else getattr(payload, f)) for f in names]
     header = [kind, len(arrays), int(seq)]
     for a in arrays:
         if a.ndim > 2:
@@ -121,6 +127,9 @@ def unpack(buf: np.ndarray):
         off += (nbytes + 7) // 8 * 8
     if kind == _ARRAY:
         return arrays[0]
+    if kind == _WIRE:
+        from ..compute.cuda_halo import DeviceEdge
+        return DeviceEdge.from_wire(arrays[0])
     fields = dict(zip(_FIELDS[kind], arrays))
     return Halo(**fields) if kind == _HALO else Particles(**fields)
 
@@ -183,7 +192,7 @@ class _Endpoint:
         self.seq = SeqCheck(self.rank)
 
     def isend(self, dest, tag, payload):
-        buf = pack(payload, self.seq.next_send(dest, tag))
+        buf = pack(payload, self.seq.next_send(dest, tag), dest)
         req = self.b.comm.Isend([buf, self.b.MPI.BYTE], dest=dest, tag=tag)
         self.b.pending.append((req, buf, dest))
 
@@ -213,12 +222,13 @@ class _Endpoint:
 class MPIComm(CommBackend):
     """`--comm mpi`: this process is rank COMM_WORLD.rank of COMM_WORLD.size."""
 
-    def __init__(self, ranks: int | None = None, comm=None, watchdog=DEFAULT_WATCHDOG, **options):
+    def __init__(self, ranks: int | None = None, comm=None, watchdog=DEFAULT_WATCHDOG, halo_transport="staged",
+                 **options):
         MPI = _mpi()
         self.MPI = MPI
         self.comm = comm if comm is not None else MPI.COMM_WORLD
         self.rank = self.comm.Get_rank()
-        super().__init__(self.comm.Get_size())
+        super().__init__(self.comm.Get_size(), halo_transport)
         watchdog = DEFAULT_WATCHDOG if watchdog is None else watchdog
         if isinstance(watchdog, bool) or not isinstance(watchdog, (int, float)) or not watchdog >= 0:
             raise InputError(f"--watchdog: expected seconds >= 0 (0 = off), got {watchdog!r}")

@@ -24,8 +24,8 @@ class _Endpoint:
 
 @register("comm", "single")
 class SingleComm(CommBackend):
-    def __init__(self, ranks: int = 1, **options):
-        super().__init__(1)
+    def __init__(self, ranks: int = 1, halo_transport: str = "staged", **options):
+        super().__init__(1, halo_transport)
 
     def endpoint(self, rank: int):
         return _Endpoint()

@@ -34,6 +34,7 @@ from numba import cuda
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
+from . import cuda_halo as CH
 from . import cuda_kernels as CK
 from . import cuda_launch as CL
 from .base import ComputeBackend, dt_from_terms
@@ -69,6 +70,7 @@ class DeviceState:
         self.pinned_chk = cuda.pinned_array(7, np.float64) if not CK.SIMULATOR else np.zeros(7)
         self.pinned_bad = cuda.pinned_array(1, np.int64) if not CK.SIMULATOR else np.zeros(1, np.int64)
         self.pinned_i4 = cuda.pinned_array(4, np.int32) if not CK.SIMULATOR else np.zeros(4, np.int32)
+        self.pinned_meta = cuda.pinned_array(9, np.float64) if not CK.SIMULATOR else np.zeros(9)  # cuda_halo
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
         self.halo_last = None                       # the halo prepared last (may not be in state.halos yet)
@@ -148,8 +150,11 @@ class DeviceState:
     def nbytes(self) -> int:
         seen = set()
         total = 0
+        slots = self.__dict__.get("edge_slots", {}).values()     # cuda_halo (ipc transport)
+        scans = [a for t in self.__dict__.get("edge_scan", {}).values() for a in t]
         for a in list(self.arrays.values()) + self.scan_tmp + [h["buf"] for h in self.halo_pool] + \
-                [x for b in self.parts.values() for x in b.values()]:
+                [x for b in self.parts.values() for x in b.values()] + \
+                [b for e in slots for b in [e["buf"]] + e["retired"]] + scans:
             if id(a) not in seen:
                 seen.add(id(a))
                 total += a.nbytes
@@ -702,12 +707,14 @@ class NumbaCUDA(ComputeBackend):
         _count(state, "h2d_bytes", "displaced", up)
         self._host_rows_changed(state, dv)
 
-    def edge(self, state, domain, direction):
+    def edge(self, state, domain, direction, slot=None):
         """Rows within `reach` of the neighbour's slab, as Slabs.edge, read from the device:
         rows are sorted by (kind, cell) with the split axis slowest, so the candidates are
         one contiguous range per kind (the cells from one cell short of the threshold on,
         a margin for rows moved since the sort); only those ranges are copied, then cut
-        exactly on the host."""
+        exactly on the host. With a `slot` (the message tag; --halo-transport ipc) the
+        ranges stay on the device and a cuda_halo.DeviceEdge describes them: the receiver
+        copies them device to device and cuts them there."""
         from sphgraph.state import Halo
         dv = state.extra.get("dev")
         g = None if dv is None else dv.grid
@@ -737,6 +744,11 @@ class NumbaCUDA(ComputeBackend):
         a0, b0, a1, b1 = (int(x) for x in dv.pinned_i4)
         m0, m1 = max(b0 - a0, 0), max(b1 - a1, 0)
         m = m0 + m1
+        if slot is not None:
+            out = CH.send_edge(self, state, dv, a0, m0, a1, m, thr, direction < 0, domain.axis, slot)
+            self._copy_mark(state, "edge_d2h", False)
+            _count(state, "d2h_bytes", "edge", 16)
+            return out
         pos, vel, rho, kind = [], [], [], []
         nb = 0
         if m:   # both ranges packed by one launch, one copy to the pinned staging buffer
@@ -779,19 +791,22 @@ class NumbaCUDA(ComputeBackend):
                 "density": p.rho, "pressure": press}
 
     # -- cells -------------------------------------------------------------------------
-    def _scan(self, dv, k, counts, out, n, level=0):
-        """Exclusive scan of counts[0:n] into out[0:n] (device, recursive over block sums)."""
+    def _scan(self, dv, k, counts, out, n, level=0, tmp=None):
+        """Exclusive scan of counts[0:n] into out[0:n] (device, recursive over block sums);
+        `tmp` the list of block-sum buffers (default the rank's; a halo binned on another
+        stream brings its own)."""
         per = 2048
         nb = (n + per - 1) // per
-        while len(dv.scan_tmp) < 2 * level + 2:
-            dv.scan_tmp.append(cuda.device_array(1, np.int64))
-        if dv.scan_tmp[2 * level].shape[0] < nb:
-            dv.scan_tmp[2 * level] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
-            dv.scan_tmp[2 * level + 1] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
-        sums, offs = dv.scan_tmp[2 * level], dv.scan_tmp[2 * level + 1]
+        tmp = dv.scan_tmp if tmp is None else tmp
+        while len(tmp) < 2 * level + 2:
+            tmp.append(cuda.device_array(1, np.int64))
+        if tmp[2 * level].shape[0] < nb:
+            tmp[2 * level] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
+            tmp[2 * level + 1] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
+        sums, offs = tmp[2 * level], tmp[2 * level + 1]
         k.k_scan_blocks[nb, 256](counts, n, out, sums)
         if nb > 1:
-            self._scan(dv, k, sums, offs, nb, level + 1)
+            self._scan(dv, k, sums, offs, nb, level + 1, tmp)
             k.k_scan_add[CK.blocks(n), CK.BLOCK](out, n, offs)
 
     def build_cells(self, state) -> None:
@@ -903,6 +918,9 @@ class NumbaCUDA(ComputeBackend):
         every field packed in the pinned staging buffer, one copy into a reusable device
         buffer (`_halo_buffer`) whose typed views are the halo's device arrays."""
         from sphgraph.cells import build_grid
+        if isinstance(halo, CH.DeviceEdge):     # --halo-transport ipc: cut and binned on the device
+            CH.receive_edge(self, state, halo)
+            return
         dv = state.extra["dev"]
         dt = dv.dtype
         c = state.consts

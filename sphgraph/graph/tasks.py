@@ -187,9 +187,16 @@ def run_build_cells(ctx, task):
 
 
 def run_send_edges(ctx, task):
+    ipc = getattr(ctx, "halo_transport", "staged") == "ipc"
     for m, d in zip(task.sends, task.meta["dirs"]):
         edge = getattr(ctx.compute, "edge", None)    # device backends: rows sliced on the device
-        ctx.comm.isend(ctx.rank + m.peer, m.tag, edge(ctx.state, ctx.domain, d) if edge else ctx.domain.edge(ctx.state, d))
+        if edge is None:
+            payload = ctx.domain.edge(ctx.state, d)
+        elif ipc:        # the rows stay on the device, in a buffer per message tag (cuda_halo)
+            payload = edge(ctx.state, ctx.domain, d, slot=m.tag)
+        else:
+            payload = edge(ctx.state, ctx.domain, d)
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, payload)
 
 
 def run_recv_halo(ctx, task):
