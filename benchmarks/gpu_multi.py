@@ -53,6 +53,8 @@ def main(argv=None):
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--precision", default="float32")
     ap.add_argument("--schedules", nargs="+", default=["production", "bulk-synchronous"])
+    ap.add_argument("--transports", nargs="+", default=["staged"], choices=["staged", "ipc"],
+                    help="--halo-transport of the multi-rank runs (a key SCHEDULE or SCHEDULE+ipc each)")
     ap.add_argument("--extra", nargs="*", default=[], help="more `sphgraph bench` arguments (multi-rank runs)")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
@@ -61,10 +63,13 @@ def main(argv=None):
         one = bench(a.scene, dp, a.steps, a.warmup, a.precision)
         row = {"dp": dp, "single": one}
         for sch in a.schedules:
-            m = bench(a.scene, dp, a.steps, a.warmup, a.precision, ranks=a.ranks, schedule=sch, extra=a.extra)
-            row[sch] = m
-            if "steps_per_s" in m and "steps_per_s" in one:
-                row[f"E_{sch}"] = (m["steps_per_s"] / a.ranks) / one["steps_per_s"]
+            for tr in a.transports:
+                key = sch if tr == "staged" else f"{sch}+{tr}"
+                m = bench(a.scene, dp, a.steps, a.warmup, a.precision, ranks=a.ranks, schedule=sch,
+                          extra=list(a.extra) + ["--halo-transport", tr])
+                row[key] = m
+                if "steps_per_s" in m and "steps_per_s" in one:
+                    row[f"E_{key}"] = (m["steps_per_s"] / a.ranks) / one["steps_per_s"]
         out["runs"].append(row)
         brief = {k: (v if not isinstance(v, dict) else
                      {kk: v.get(kk) for kk in ("particles", "steps_per_s", "particle_steps_per_s", "device",

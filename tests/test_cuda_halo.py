@@ -127,11 +127,6 @@ def test_halo_transport_bad_input_exits_2(tmp_path, args, expect):
     assert not out.exists()
 
 
-def _mpiexec():
-    exe = os.path.join(sys.prefix, "bin", "mpiexec")
-    return exe if os.path.exists(exe) else None
-
-
 @gpu
 @pytest.mark.mpi
 def test_gpu_mpiexec_ipc_halos_match_staged_and_one_rank():
