@@ -125,6 +125,15 @@ def check_conformance():
             "behaviours": [n for n, _ in tc.behaviours()]}
 
 
+def push(sim, st, speed=2.0):
+    """Fluid pushed along x (rows cross the cuts), uploaded again to the device."""
+    p = st.particles
+    p.vel[p.kind == 0, 0] += speed
+    p.vel_m1[p.kind == 0, 0] += speed
+    st.extra.pop("dev", None)        # a fresh upload (prepare keeps device rows of the same host set)
+    sim.compute.prepare(st)
+
+
 def check_cuda_ipc(steps=20):
     from mpi4py import MPI
 
@@ -136,10 +145,7 @@ def check_cuda_ipc(steps=20):
         sim = Simulation(sc, backend="numba-cuda", precision="float64", comm="mpi", decomposition_axis="x",
                          comm_options={"halo_transport": tr})
         for c in sim.contexts:
-            p = c.state.particles
-            p.vel[p.kind == 0, 0] += 2.0
-            p.vel_m1[p.kind == 0, 0] += 2.0
-            sim.compute.prepare(c.state)
+            push(sim, c.state)
         for _ in range(steps):
             sim.step()
         got[tr] = sim.frame_arrays()
@@ -147,10 +153,7 @@ def check_cuda_ipc(steps=20):
     if comm.rank != 0:
         return None
     ref_sim = Simulation(sc, backend="numba-cuda", precision="float64", comm="single")
-    p = ref_sim.contexts[0].state.particles
-    p.vel[p.kind == 0, 0] += 2.0
-    p.vel_m1[p.kind == 0, 0] += 2.0
-    ref_sim.compute.prepare(ref_sim.contexts[0].state)
+    push(ref_sim, ref_sim.contexts[0].state)
     for _ in range(steps):
         ref_sim.step()
     ref = ref_sim.frame_arrays()

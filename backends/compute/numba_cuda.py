@@ -509,6 +509,11 @@ class NumbaCUDA(ComputeBackend):
             if old.host_busy is not None:
                 old.host_busy.synchronize()
             dv.pinned_xfer, dv.halo_pool, dv.halo_last = old.pinned_xfer, old.halo_pool, old.halo_last
+            # --halo-transport ipc: this rank's edge buffers (their handles went to the peers
+            # once) and the peers' buffers it has mapped (cuda_halo)
+            for key in ("edge_slots", "edge_peers", "edge_scan"):
+                if key in old.__dict__:
+                    dv.__dict__[key] = old.__dict__[key]
         state.extra["dev"] = dv
         _count(state, "h2d_bytes", "upload", up)
         state.parts = {}
