@@ -4,8 +4,8 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:MAXREG:BLOCK[:notrim] (KERNEL f, fv or fw: cuda_kernels.FORCES; notrim:
-fv/fw with whole cells, as right after a step that moved rows since the sort). The cells are
+A variant is KERNEL:MAXREG:BLOCK[:notrim] (KERNEL f or fv: cuda_kernels.FORCES; notrim:
+fv with whole cells, as right after a step that moved rows since the sort). The cells are
 sorted again before the timings, so fv trims its rows with no slack.
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.

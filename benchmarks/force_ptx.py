@@ -26,7 +26,7 @@ def main(argv=None):
     ap.add_argument("--maxreg", type=int, default=None, help="register cap (default: the backend's)")
     ap.add_argument("--dp", type=float, default=0.03)
     ap.add_argument("--dump", default=None, help="write the PTX and SASS here")
-    ap.add_argument("--forces", default=None, help="f, fv or fw (default: the backend's)")
+    ap.add_argument("--forces", default=None, help="f or fv (default: the backend's)")
     a = ap.parse_args(argv)
     from numba import cuda, types as T
     from sphgraph.backends.compute import cuda_kernels as CK
@@ -43,7 +43,7 @@ def main(argv=None):
                                                           a32, a32, a32, a32, a32, ai8, a32)
     sig_b = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, a32, a32, a32, a32, a32, ai8, a32)
     CK.FORCES = a.forces or CK.FORCES
-    if CK.FORCES != "f":   # k_forces_fv / k_forces_fw
+    if CK.FORCES != "f":   # k_forces_fv
         sig_f = (a32, a32, i64, i64, ai32, i64) + (f32,) * 6 + (i64,) * 7 + (f32,) * 3 + (a32,) * 5 + (ai8, a32)
         sig_b = sig_f                       # k_forces_bv: the same arguments
     mr = CK.MAXREG if a.maxreg is None else a.maxreg

@@ -172,7 +172,7 @@ FORCES_SCRIPT = textwrap.dedent('''
         st.dt = sim.compute.dt_local(st)
         sim.compute.integrate(st, 1, "symplectic", False)
     res = {}
-    for v in ("f", "fv", "fw"):
+    for v in ("f", "fv"):
         CK.FORCES = v
         dv.A()["ar"].copy_to_device(np.full(dv.n, np.nan))   # poison: every row must be written
         dv.A()["visc"].copy_to_device(np.zeros(1))           # the viscous maximum, from this call only
@@ -180,7 +180,7 @@ FORCES_SCRIPT = textwrap.dedent('''
         A = dv.A()
         res[v] = [A[k].copy_to_host()[:dv.n] for k in ("ax", "ay", "az", "ar", "visc")]
     print(json.dumps({"n": dv.n, "nf": dv.nf, "moved": float(dv.moved),
-                      "diff": {v: [float(np.abs(a - b).max()) for a, b in zip(res["f"], res[v])] for v in ("fv", "fw")},
+                      "diff": [float(np.abs(a - b).max()) for a, b in zip(res["f"], res["fv"])],
                       "scale": [float(np.abs(a).max()) for a in res["f"]],
                       "nan": {k: int(np.isnan(r[3]).sum()) for k, r in res.items()}}))
 ''')
@@ -189,11 +189,10 @@ FORCES_SCRIPT = textwrap.dedent('''
 @pytest.mark.parametrize("integrator", ["verlet", "symplectic"])
 def test_simulator_fluid_force_kernels_sum_alike(integrator):
     """k_forces_fv / k_forces_bv (16-byte record loads, cell ranges from the relative
-    positions in the run's type, rows trimmed to the sphere's chord), and k_forces_fw
-    (k_forces_fv as a per-lane candidate stream), against k_forces_f / k_forces_b (whole
-    cells) on one 3D state in the simulator, right after a sort and (Symplectic) after
-    the predictor moved the rows: the same sums in the same order (bit-identical), every
-    row written."""
+    positions in the run's type, rows trimmed to the sphere's chord) against k_forces_f /
+    k_forces_b (whole cells) on one 3D state in the simulator, right after a sort and
+    (Symplectic) after the predictor moved the rows: the same sums in the same order
+    (bit-identical), every row written."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
     script = f"INTEGRATOR = {integrator!r}\n" + FORCES_SCRIPT
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
@@ -201,7 +200,7 @@ def test_simulator_fluid_force_kernels_sum_alike(integrator):
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["nf"] > 20 and min(out["scale"][:4]) > 0
     assert set(out["nan"].values()) == {0}
-    assert out["diff"] == {"fv": [0.0] * 5, "fw": [0.0] * 5}, out
+    assert out["diff"] == [0.0] * 5, out
     # trimmed with a finite slack: none right after the sort, dt/2 |v|max after the predictor
     if integrator == "verlet":
         assert out["moved"] == 0.0, out

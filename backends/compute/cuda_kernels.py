@@ -43,11 +43,10 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # 4.4 M; docs/gpu.md): fv 1.11x with whole cells, 1.25x trimmed. A variant with a per-lane
 # neighbour queue in shared memory (the pair body run only when every lane had a neighbour)
 # raised the warp's active lanes from 20.7 to 27 of 32 but executed 15-30 % more
-# instructions: 0.6-0.8x, dropped. "fw": k_forces_fw (k_forces_fv's loops as a per-lane
-# candidate stream, the pair body after the warp met again) / k_forces_bv.
+# instructions: 0.6-0.8x, dropped.
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
-if FORCES not in ("f", "fv", "fw"):
-    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f, fv or fw")
+if FORCES not in ("f", "fv"):
+    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
 
 
 # ------------------------------------------------------------------------------- retargeting
@@ -114,13 +113,8 @@ def _load4_py(a, i):
     return a[i], a[i + 1], a[i + 2], a[i + 3]
 
 
-def _opaque_py(x):
-    return x
-
-
 if SIMULATOR:
     load4 = _load4_py
-    opaque = _opaque_py
 else:
     from llvmlite import ir as _ir
     from numba.core import cgutils as _cg, types as _nt
@@ -144,25 +138,6 @@ else:
             vec = builder.load(builder.bitcast(ptr, vty.as_pointer()), align=16)
             vals = [builder.extract_element(vec, _ir.Constant(_ir.IntType(32), k)) for k in range(4)]
             return context.make_tuple(builder, sig.return_type, vals)
-        return sig, codegen
-
-    @_intrinsic
-    def opaque(typingctx, x):
-        """x (an integer or a float) through an inline-asm move that LLVM may neither move
-        nor merge: it cannot see where the value came from, so it neither threads a branch
-        on it into its predecessors nor hoists what is computed from it out of a loop
-        (k_forces_fw)."""
-        if not isinstance(x, (_nt.Integer, _nt.Float)) or x.bitwidth not in (32, 64):
-            return None
-        sig = x(x)
-
-        def codegen(context, builder, sig, args):
-            ty = context.get_value_type(sig.args[0])
-            w = sig.args[0].bitwidth
-            c = ("=r,r" if w == 32 else "=l,l") if isinstance(sig.args[0], _nt.Integer) else \
-                ("=f,f" if w == 32 else "=d,d")
-            return builder.asm(_ir.FunctionType(ty, [ty]), f"mov.b{w} $0, $1;", c, [args[0]],
-                               side_effect=True)
         return sig, codegen
 
 
@@ -1438,162 +1413,6 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
         cuda.atomic.max(visc_, 0, sh[0])
 
 
-@njit(inline="always")
-def _fw_pair(vel4, j4, b_bound, drx, dry, drz, r2, pb, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, prm,
-             kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """_fv_pair's pair body alone (k_forces_fw: the candidate at j4 passed the r^2 test
-    already, its offset and its pressure pb come with it)."""
-    vxb, vyb, vzb, rho_b = load4(vel4, j4)
-    fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
-                                            inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
-                                            ddt_kind, laminar)
-    axx += fx
-    ayy += fy
-    azz += fz
-    arr += fr
-    dd += fd
-    cc |= fc
-    if fv > vmax:
-        vmax = fv
-    return axx, ayy, azz, arr, dd, cc, vmax
-
-
-def k_forces_fw(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
-                a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_fv (same arguments, same sums in the same order) as a candidate stream:
-    in k_forces_fv each lane tests one candidate an iteration and the pair body (most of
-    the instructions) then runs with only the lanes whose candidate passed (~56 %), in
-    loops whose trip counts differ per lane and row. Here each lane keeps a cursor (row of
-    cells c1, c2; fluid or boundary part; j4 .. e4) and a search loop advances it, testing
-    candidates and moving on to the next part or row, until the lane holds an accepted
-    candidate or has none left; the warp meets again after it and the pair body runs once,
-    with (nearly) every lane in it, its boundary flag and neighbour mass chosen at run
-    time. Rows, parts and candidates come in k_forces_fv's order (c2 outer, c1 inner;
-    fluid, then boundary; j up), so each lane's sums are the same. The price: each body
-    waits for the warp's longest search (sm_90 SASS at 64 registers: 14 instructions a
-    tested candidate, ~95 a pair body, no spills)."""
-    prm = cuda.const.array_like(PRMC)
-    kernel_id = KID
-    ddt_kind = DDTK
-    laminar = LAM
-    i = cuda.grid(1) + i0
-    i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
-    #                       stores) so that every thread reaches the block maximum below
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
-    d4 = 4 * i
-    xa, ya, za, p_a = load4(pos4, d4)
-    vxa, vya, vza, rho_a = load4(vel4, d4)
-    zero = rho_a - rho_a
-    q0, q1, q2, lo1, hi1, lo2, hi2 = _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2)
-    size = 1.0 / inv_size
-    reach2 = pad * pad
-    inv_rho_a = 1.0 / rho_a
-    axx = zero
-    ayy = zero
-    azz = zero
-    arr = zero
-    dd = zero
-    cc = 0
-    vmax = zero
-    # the cursor, in int32 (numba widens int arithmetic to int64; np.int32() narrows it
-    # back): half the registers, and one instruction per increment and compare in the
-    # candidate loop. Record offsets stay below 2^31 up to 536 M rows. It starts past the
-    # row before (lo1, lo2): the first advance gives that row (none when the window misses
-    # the grid across the rows).
-    l1 = np.int32(lo1)
-    h1 = np.int32(hi1)
-    h2 = np.int32(hi2 if lo1 <= hi1 else lo2 - 1)
-    c1 = np.int32(hi1)
-    c2 = np.int32(lo2 - 1)
-    j4 = np.int32(0)    # the candidates j4, j4 + 4 .. e4 - 4 (record offsets) of the current part
-    e4 = np.int32(0)
-    b4 = np.int32(0)    # the row's boundary part, next while `bound` is False
-    f4 = np.int32(0)
-    bound = True
-    drx = zero
-    dry = zero
-    drz = zero
-    r2 = zero
-    pb = zero
-    # opaque() (an inline-asm move) pins the control flow that makes the warp meet before
-    # the pair body: without the one here LLVM merges this loop's head into the search
-    # loop's, and without the one after the search it threads that branch into the
-    # search's two exits; either way the body lands inside the search loop and ptxas
-    # reconverges the warp once a candidate, as in k_forces_fv.
-    while True:
-        j4 = opaque(j4)
-        # the search: the next accepted candidate (j4 < e4) or none left (j4 >= e4)
-        while True:
-            # the candidates of the current part: the loop the search spends its time in
-            while j4 < e4:
-                xb, yb, zb, pb = load4(pos4, j4)
-                drx = xa - xb
-                dry = ya - yb
-                drz = za - zb
-                r2 = drx * drx + dry * dry + drz * drz
-                if not (r2 > support2 or r2 < 1e-18):
-                    break
-                j4 = np.int32(j4 + 4)
-            if j4 < e4:     # accepted
-                break
-            if not bound:
-                j4 = b4
-                e4 = f4
-                bound = True
-            else:
-                if c1 < h1:
-                    c1 = np.int32(c1 + 1)
-                else:
-                    c1 = l1
-                    c2 = np.int32(c2 + 1)
-                if c2 > h2:
-                    break
-                # the row's values again, through opaque() so that LLVM does not hoist them
-                # out of the loops: _row_cut works in float64 (int cell * float), and the
-                # hoisted q's and float64 copies of the grid's constants held ~12 registers
-                # across the pair body (40 B of spills at 64 registers, in the body)
-                q0, q1, q2, _l1, _h1, _l2, _h2 = _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2,
-                                                        opaque(a0), opaque(a1), opaque(a2))
-                k1 = int(c1)    # int64, as k_forces_fv's: the same row cut (in the simulator too)
-                k2 = int(c2)
-                rr, clo, chi = _row_cut(q0, q1, q2, k1, k2, opaque(o0), opaque(o1), opaque(o2), opaque(size),
-                                        opaque(inv_size), opaque(reach2), n0, a1, a2, zero)
-                if clo <= chi:      # else the row is out of reach: on to the next
-                    # both parts' ranges at once, as in k_forces_fv (fewer values live)
-                    row = (k2 * n1 + k1) * n0
-                    tp = opaque(tpad)
-                    lo_t = q0 - rr - tp
-                    hi_t = q0 + rr + tp
-                    j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
-                    b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
-                    j4 = np.int32(4 * j0)
-                    e4 = np.int32(4 * j1)
-                    b4 = np.int32(4 * b0)
-                    f4 = np.int32(4 * b1)
-                    bound = False
-        if opaque(j4) >= e4:
-            break
-        axx, ayy, azz, arr, dd, cc, vmax = _fw_pair(
-            vel4, j4, bound, drx, dry, drz, r2, pb, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb if bound else mf,
-            prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-        j4 = np.int32(j4 + 4)
-    _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
-                 ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
-    sh = cuda.shared.array(1, RT)
-    if cuda.threadIdx.x == 0:
-        sh[0] = vmax
-    cuda.syncthreads()
-    if vmax > sh[0]:
-        cuda.atomic.max(sh, 0, vmax)
-    cuda.syncthreads()
-    if cuda.threadIdx.x == 0:
-        cuda.atomic.max(visc_, 0, sh[0])
-
-
 def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """k_forces_b (same sums in the same order: boundary destinations, fluid candidates,
@@ -1844,8 +1663,7 @@ _FORCES: dict = {}
 def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | None = None,
                   max_registers: int | None = None) -> types.SimpleNamespace:
     """The fluid and boundary force kernels (k_forces_f / k_forces_b, or with FORCES "fv"
-    k_forces_fv / k_forces_bv, or with "fw" k_forces_fw / k_forces_bv, under the names
-    k_forces_f / k_forces_b) for one run: `prm` (the run's parameter vector) and the
+    k_forces_fv / k_forces_bv, under the names k_forces_f / k_forces_b) for one run: `prm` (the run's parameter vector) and the
     options become compile-time constants (cached per distinct set; a new scene or dp
     compiles once more)."""
     dt = np.dtype(dtype)
@@ -1860,8 +1678,6 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
         out["relative"] = FORCES != "f"      # k_forces_fv's arguments
         for name in ("k_forces_f", "k_forces_b"):
             src = name if FORCES == "f" else name + "v"     # fv: k_forces_fv / k_forces_bv
-            if FORCES == "fw" and name == "k_forces_f":
-                src = "k_forces_fw"                         # fw: k_forces_fw / k_forces_bv
             fn = _clone(globals()[src], dt, memo, extra)
             if SIMULATOR:
                 out[name] = cuda.jit(fn)
