@@ -127,8 +127,9 @@ def test_halo_transport_bad_input_exits_2(tmp_path, args, expect):
     assert not out.exists()
 
 
-@gpu
+@pytest.mark.gpu
 @pytest.mark.mpi
+@gpu
 def test_gpu_mpiexec_ipc_halos_match_staged_and_one_rank():
     """`mpiexec -n 2` on the GPU machine (two ranks on one GPU or one each): CUDA IPC
     handles exchanged over MPI, halos device to device; bit-identical to the staged
