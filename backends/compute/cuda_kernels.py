@@ -480,16 +480,11 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
         s += r2[i]
         dd += d2[i]
         cc |= c2[i]
-    if kind[i] == 0:
+    if kind[i] == 0:      # accelerations of fluid rows only (rows 0..nf-1: see prepare)
         ax_[i] = sx + gx
         ay_[i] = sy + gy
         if dim == 3:
             az_[i] = sz + gz
-    else:
-        ax_[i] = zero * sx
-        ay_[i] = zero * sy
-        if dim == 3:
-            az_[i] = zero * sz
     ar_[i] = s + (dd if cc == 0 else zero * dd)
 
 
@@ -1214,14 +1209,15 @@ def _store_fluid(i, final, dim3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, ax_, ay
 
 @njit(inline="always")
 def _store_boundary(i, final, dim3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_):
-    """Boundary row i's sums out (k_forces_b, k_forces_bv): no acceleration, the density
-    rate; a partial buffer also gets no diffusion and no cancel."""
-    ax_[i] = zero
-    ay_[i] = zero
-    if dim3:
-        az_[i] = zero
+    """Boundary row i's sums out (k_forces_b, k_forces_bv): the density rate; a partial
+    buffer also gets no acceleration, no diffusion and no cancel. The rank's reduced
+    accelerations (final) hold fluid rows only (rows 0..nf-1 after the sort): nothing there."""
     ar_[i] = arr
     if not final:
+        ax_[i] = zero
+        ay_[i] = zero
+        if dim3:
+            az_[i] = zero
         ddt_[i] = zero
         cancel_[i] = 0
 

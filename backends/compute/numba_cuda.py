@@ -95,9 +95,9 @@ class DeviceState:
 
     def make_views(self):
         """Per-component views of the packed records, and the aliases that keep the
-        footprint down: the sort's permutation lives in `ar` and the cell keys in `ax`
-        (both dead from the integration to the next forces), and pos4 (rebuilt after each
-        sort) is the sort's gather scratch and holds the histogram when it fits."""
+        footprint down: the sort's permutation lives in `ar` (dead from the integration to
+        the next forces), and pos4 (rebuilt after each sort) is the sort's gather scratch
+        and holds the histogram and the cell keys when they fit."""
         a, v = self.arrays, self.views
         v4, p4 = a["vel4"], a["pos4"]
         n = p4.shape[0] // 4
@@ -107,22 +107,33 @@ class DeviceState:
         v["rho"] = _every4(v4, 3)
         v["press"] = _every4(p4, 3)
         v["perm"] = a["ar"].view(np.int32)[:n]
-        v["keys"] = a["ax"].view(np.int32)[:n]
 
-    def scratch(self, dtype, m):
-        """m elements of `dtype` in the pos4 buffer (None when they do not fit)."""
+    def fit_fluid(self):
+        """The reduced accelerations (ax, ay, az) hold fluid rows only: the rows are sorted
+        fluid first, and only fluid rows move by them (12 B per boundary row saved in 3D).
+        Room for every row the capacity may still bring being fluid; grown when fluid rows
+        arrive beyond it (their values are rewritten by the next forces)."""
+        want = max(self.nf + (self.cap - self.n), 1)
+        for ax in _VEC[:self.dim]:
+            a = self.arrays.get("a" + ax)
+            if a is None or a.shape[0] < self.nf or a.shape[0] < 1:
+                self.arrays["a" + ax] = cuda.device_array(want, self.dtype)
+
+    def scratch(self, dtype, m, off=0):
+        """m elements of `dtype` from element `off` on in the pos4 buffer (None when they
+        do not fit)."""
         p4 = self.arrays["pos4"]
-        if m * np.dtype(dtype).itemsize > p4.nbytes:
+        if (off + m) * np.dtype(dtype).itemsize > p4.nbytes:
             return None
         # kept: a numba view costs tens of microseconds of host time, and the sort asks
         # for the same few every step
         c = self.__dict__.setdefault("_scratch", {})
-        key = (id(p4), np.dtype(dtype).str, m)
+        key = (id(p4), np.dtype(dtype).str, m, off)
         v = c.get(key)
         if v is None or v[0] is not p4:
             if len(c) > 32:
                 c.clear()
-            v = c[key] = (p4, p4.view(dtype)[:m])
+            v = c[key] = (p4, p4.view(dtype)[off:off + m])
         return v[1]
 
     def host_buf(self, nbytes):
@@ -486,8 +497,7 @@ class NumbaCUDA(ComputeBackend):
         put("id", p.id, np.int64 if p.n and int(p.id.max()) >= 2 ** 31 - 1 else np.int32)
         # work arrays (not uploaded)
         dv.arrays["pos4"] = cuda.device_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
-        for ax in _VEC[:dim]:
-            dv.arrays["a" + ax] = cuda.device_array(n, dt)       # reduced acceleration
+        dv.fit_fluid()                                           # reduced acceleration, fluid rows
         for ax in _VEC[dim:]:
             dv.arrays["a" + ax] = cuda.device_array(1, dt)
         dv.arrays["ar"] = cuda.device_array(n, dt)
@@ -706,6 +716,7 @@ class NumbaCUDA(ComputeBackend):
         dv.n = n + m
         dv.moved = np.inf          # rows moved in the arrays: no trimming until the next sort
         dv.nf += int(np.count_nonzero(r.kind == 0))
+        dv.fit_fluid()
         if dv.box is not None:      # the next grid must hold the new rows
             dv.box[0, :dim] = np.minimum(dv.box[0, :dim], r.pos.min(axis=0))
             dv.box[1, :dim] = np.maximum(dv.box[1, :dim], r.pos.max(axis=0))
@@ -850,21 +861,28 @@ class NumbaCUDA(ComputeBackend):
             dv.arrays.pop("counts", None)
         start = dv.start
         counts = dv.scratch(np.int32, nk)            # the histogram in the (dead) pos4 records
+        koff = nk
         if counts is None:
             if "counts" not in dv.arrays or dv.arrays["counts"].shape[0] < nk:
                 dv.arrays["counts"] = cuda.device_array(dv.cell_cap, np.int32)
             counts = dv.arrays["counts"]
+            koff = 0
+        keys = dv.scratch(np.int32, n, koff)          # the cell keys after it (dead once scattered)
+        if keys is None:
+            if "keys" not in dv.arrays or dv.arrays["keys"].shape[0] < n:
+                dv.arrays["keys"] = cuda.device_array(max(dv.cap, 1), np.int32)
+            keys = dv.arrays["keys"]
         inv = 1.0 / c.cell_size
         if n:
             k.k_fill[CK.blocks(nk), CK.BLOCK](counts, nk, 0)
             k.k_keys_hist2[CK.blocks(n), CK.BLOCK](dv.px, dv.py, dv.pz, dv.kind, n, dim, o_ax[0], o_ax[1],
                                                     o_ax[2], inv, n_ax[0], n_ax[1], n_ax[2],
-                                                    s_ax[0], s_ax[1], s_ax[2], ncells, dv.keys, counts)
+                                                    s_ax[0], s_ax[1], s_ax[2], ncells, keys, counts)
             self._scan(dv, k, counts, start, nk)
             k.k_set_last[1, 1](start, nk, n)
             # scatter: counts becomes the fill pointer (a copy of start)
             k.k_copy[CK.blocks(nk), CK.BLOCK](start, nk, counts)
-            k.k_scatter[CK.blocks(n), CK.BLOCK](dv.keys, n, counts, dv.perm)
+            k.k_scatter[CK.blocks(n), CK.BLOCK](keys, n, counts, dv.perm)
             # each cell's rows in increasing coordinate along the rows of cells (axes[0]):
             # the force kernels trim every row of cells to the sphere's chord by bisection
             key = (dv.px, dv.py, dv.pz)[int(axes[0])] if axes[0] >= 0 and TRIM else None
