@@ -113,7 +113,8 @@ class DeviceState:
         fluid first, and only fluid rows move by them (12 B per boundary row saved in 3D).
         Room for every row the capacity may still bring being fluid; grown when fluid rows
         arrive beyond it (their values are rewritten by the next forces)."""
-        want = max(self.nf + (self.cap - self.n), 1)
+        # (in the simulator exactly the fluid rows: a boundary row's access is an IndexError there)
+        want = max(self.nf + (0 if CK.SIMULATOR else self.cap - self.n), 1)
         for ax in _VEC[:self.dim]:
             a = self.arrays.get("a" + ax)
             if a is None or a.shape[0] < self.nf or a.shape[0] < 1:
@@ -598,8 +599,8 @@ class NumbaCUDA(ComputeBackend):
         lim = max(1024, n // 32)
         if "mig_cnt" not in A:
             A["mig_cnt"] = cuda.device_array(1, np.int32)
-        keep = A["ax"].view(np.int32)[:n]          # accelerations are dead until the forces
-        pos = A["ay"].view(np.int32)[:n]
+        keep = dv.scratch(np.int32, n)             # the pos4 records are dead until the next
+        pos = dv.scratch(np.int32, n, n)           # sort rebuilds them (ax holds fluid rows only)
         cnt = A["mig_cnt"]
         k.k_fill[1, 1](cnt, 1, 0)
         b = CK.blocks(n)
