@@ -36,6 +36,24 @@ SCENES = textwrap.dedent('''
                  "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": fluid_hi or [0.2, 0.3, 0.25]}],
                  "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [0.4, 0.3, 0.4], "layers": 1}]}
         return Scene.from_dict(d, source="<test>")
+
+    def mock_sim(sc, ranks, shift=2, **kw):
+        """The CUDA backend (float64) on `ranks` mock ranks with the inner cuts moved up by
+        `shift` spacings: the rows between the old and the new cuts change rank in the first
+        step (removed and appended on the device)."""
+        from sphgraph.solver import Simulation
+        g = Simulation(sc, backend="numba-cuda", precision="float64", comm="mock", ranks=ranks, **kw)
+        for c in g.contexts:
+            c.domain.cuts = c.domain.cuts.copy()
+            c.domain.cuts[1:-1] += shift * sc.dp
+        return g
+
+    def rows_by_id(sim):
+        """The gathered rows in id order (id, position, velocity, density)."""
+        import numpy as np
+        f = sim.frame_arrays()
+        i = np.argsort(f["id"])
+        return {k: f[k][i] for k in ("id", "position", "velocity", "density")}
 ''')
 
 COMPARE = SCENES + textwrap.dedent('''
@@ -381,18 +399,11 @@ LANES = MULTI + textwrap.dedent('''
         for ranks, steps in runs:
             got = {}
             for sch in ("production", "bulk-synchronous"):
-                g = Simulation(sc, backend="numba-cuda", precision="float64", comm="mock", ranks=ranks,
-                               schedule=sch)
-                for c in g.contexts:
-                    c.domain.cuts = c.domain.cuts.copy()
-                    c.domain.cuts[1:-1] += 2 * sc.dp
+                g = mock_sim(sc, ranks, schedule=sch)
                 g.compute.lane_log = []
                 for _ in range(steps):
                     g.step()
-                f = g.frame_arrays()
-                i = np.argsort(f["id"])
-                got[sch] = ({k: f[k][i] for k in ("id", "position", "velocity", "density")},
-                            g.compute.lane_log, g.compute.uses_lanes,
+                got[sch] = (rows_by_id(g), g.compute.lane_log, g.compute.uses_lanes,
                             [len(c.state.extra.get("bytes_by_kind", {})) for c in g.contexts],
                             [dict(c.state.extra.get("bytes_by_kind", {})) for c in g.contexts])
             r = refs[steps - 1]
@@ -500,15 +511,10 @@ LANES_GPU = MULTI + textwrap.dedent('''
         res = {}
         for streams in ("1", "0"):
             os.environ["SPHGRAPH_CUDA_STREAMS"] = streams
-            g = Simulation(sc, backend="numba-cuda", precision="float64", comm="mock", ranks=ranks)
-            for c in g.contexts:
-                c.domain.cuts = c.domain.cuts.copy()
-                c.domain.cuts[1:-1] += 2 * sc.dp
+            g = mock_sim(sc, ranks)
             for _ in range(steps):
                 g.step()
-            f = g.frame_arrays()
-            i = np.argsort(f["id"])
-            res[streams] = ({k: f[k][i] for k in ("id", "position", "velocity", "density")}, g.compute.uses_lanes)
+            res[streams] = (rows_by_id(g), g.compute.uses_lanes)
         a, b = res["1"][0], res["0"][0]
         return {"lanes": [res["1"][1], res["0"][1]], "same": all(bool(np.array_equal(a[k], b[k])) for k in a)}
 ''')

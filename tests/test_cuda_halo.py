@@ -21,7 +21,6 @@ IPC_SIM = SCENES + textwrap.dedent('''
     import json
     import numpy as np
     from sphgraph.errors import CommError
-    from sphgraph.solver import Simulation
 
     def ipc_vs_staged(dim, integrator, ranks, steps):
         """Both transports on `ranks` mock ranks (inner cuts moved by 2 spacings: rows change
@@ -29,16 +28,10 @@ IPC_SIM = SCENES + textwrap.dedent('''
         sc = scene(dim, integrator)
         got, kinds, edges = {}, {}, {}
         for tr in ("staged", "ipc"):
-            g = Simulation(sc, backend="numba-cuda", precision="float64", comm="mock", ranks=ranks,
-                           comm_options={"halo_transport": tr})
-            for c in g.contexts:
-                c.domain.cuts = c.domain.cuts.copy()
-                c.domain.cuts[1:-1] += 2 * sc.dp
+            g = mock_sim(sc, ranks, comm_options={"halo_transport": tr})
             for _ in range(steps):
                 g.step()
-            f = g.frame_arrays()
-            i = np.argsort(f["id"])
-            got[tr] = {k: f[k][i] for k in ("id", "position", "velocity", "density")}
+            got[tr] = rows_by_id(g)
             kinds[tr] = [dict(c.state.extra.get("bytes_by_kind", {})) for c in g.contexts]
             edges[tr] = [len(c.state.extra["dev"].__dict__.get("edge_slots", {})) for c in g.contexts]
         # rank 0 writes its upward slot twice before rank 1 reads the first message
