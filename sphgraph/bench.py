@@ -57,6 +57,7 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
         "bytes_per_particle": mem / sim.n_total, "task_seconds": task_s,
         "backend": sim.compute.name, "comm": sim.comm.name, "ranks": sim.nranks,
         "precision": sim.precision, "integrator": sim.integrator, "schedule": sim.schedule.name,
+        "halo_transport": sim.halo_transport,
         "dp": sim.scene.dp, "device": sim.compute.device_name(), "version": __version__,
         "virtual_time": bool(sim.comm.virtual_time),
     }
