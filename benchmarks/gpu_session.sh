@@ -6,7 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
-#         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m ipc ipc-tests ipc-overlap mem
+#         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m ipc ipc-tests ipc-overlap mem forceab-rt
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -89,6 +89,9 @@ for s in "$@"; do
     # what overlap buys with each transport: production against bulk-synchronous, 2 ranks on the GPU
     ipc-overlap) stage ipc_overlap 400 python3 benchmarks/gpu_multi.py --dp 0.01 --ranks 2 --steps 20 --warmup 3 \
                 --schedules production bulk-synchronous --transports staged ipc --json "$OUT/multi_ipc_overlap.json" ;;
+    # the row set-up in the run's type (float32 slab gaps): caps and whole cells against k_forces_f
+    forceab-rt) stage forceab_rt 200 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants f:64:128 fv:64:128:notrim fv:64:128 fv:56:128 fv:48:128 --json "$OUT/force_ab_rt.json" ;;
     ipc-tests) stage ipc_tests 400 python3 -m pytest -q -s -m gpu -p no:cacheprovider tests/test_cuda_halo.py ;;
     # device memory beyond the arrays (modules, work buffers) at 4.4 M
     mem)      stage mem 150 python3 benchmarks/gpu_memory.py --dp 0.006 --json "$OUT/memory.json" ;;

@@ -44,6 +44,7 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # neighbour queue in shared memory (the pair body run only when every lane had a neighbour)
 # raised the warp's active lanes from 20.7 to 27 of 32 but executed 15-30 % more
 # instructions: 0.6-0.8x, dropped.
+RT = np.float64      # the run's float type: each kernel clone gets its own (_clone)
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -1310,8 +1311,11 @@ def _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2):
 
 @njit(inline="always")
 def _slab_gap(q, o, c, size, zero):
-    """Distance from q to the slab of cell c (origin o, cells of `size`), 0 inside it."""
-    return max(zero, o + c * size - q, q - (o + (c + 1) * size))
+    """Distance from q to the slab of cell c (origin o, cells of `size`), 0 inside it; in
+    the run's type (an int64 cell index times a float32 size would be float64 in numba,
+    and the row set-up with it: twice the registers, spills)."""
+    lo = o + RT(c) * size
+    return max(zero, lo - q, q - (lo + size))
 
 
 @njit(inline="always")
