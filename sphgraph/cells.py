@@ -141,7 +141,8 @@ def cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach):
     return lo0, hi0, lo1, hi1, lo2, hi2, empty
 
 
-def _dims(lo, hi, cell_size, axes):
+def grid_dims(lo, hi, cell_size, axes):
+    """Cells along (fast, mid, slow) of a grid from lo to hi (permuted axes; 1 for a missing axis)."""
     dims = np.maximum(np.floor((hi - lo) / cell_size).astype(np.int64) + 1, 1)
     dims[axes < 0] = 1
     return dims
@@ -166,7 +167,7 @@ def build_grid(pos: np.ndarray, cell_size: float, reach: int, axes: np.ndarray, 
             lo[2] = min(lo[2], a)
         if np.isfinite(b):
             hi[2] = max(hi[2], b)
-    dims = _dims(lo, hi, cell_size, axes)
+    dims = grid_dims(lo, hi, cell_size, axes)
     keys = np.empty(pos.shape[0], np.int64)
     cell_keys(pos, lo, 1.0 / cell_size, dims, axes, keys)
     perm, start = counting_sort(keys, int(dims.prod()))
@@ -188,4 +189,4 @@ def grid_takes(grid: CellGrid, pos: np.ndarray):
     if np.any(lo[used] < grid.origin[used]):
         return False, None
     hi = np.where(used, np.maximum(grid.hi, hi), 0.0)
-    return bool(np.array_equal(_dims(grid.origin, hi, grid.size, grid.axes), grid.dims)), hi
+    return bool(np.array_equal(grid_dims(grid.origin, hi, grid.size, grid.axes), grid.dims)), hi

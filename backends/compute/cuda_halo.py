@@ -170,7 +170,7 @@ def _peer_buffer(dv, edge):
 def receive_edge(be, state, edge) -> None:
     """Bring a DeviceEdge's rows over, cut and bin them on the device: `edge` becomes the
     halo, with the device arrays the halo force kernels read."""
-    from sphgraph.cells import CellGrid, _dims
+    from sphgraph.cells import CellGrid, grid_dims
     from .numba_cuda import _VEC, _count, _layout, _split, _wait
     dv = state.extra["dev"]
     k, s = be._k(state), be._s(state)
@@ -215,7 +215,7 @@ def receive_edge(be, state, edge) -> None:
     for kk in range(3):
         if axes[kk] >= 0:
             lo[kk], hi[kk] = hm[2 + axes[kk]], hm[5 + axes[kk]]
-    dims = _dims(lo, hi, c.cell_size, axes)
+    dims = grid_dims(lo, hi, c.cell_size, axes)
     ncells = int(dims.prod())
     stride = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
     o_ax, n_ax, s_ax = np.zeros(3), np.ones(3, np.int64), np.zeros(3, np.int64)

@@ -31,6 +31,7 @@ import os
 import numpy as np
 from numba import cuda
 
+from sphgraph.cells import grid_dims
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
@@ -841,8 +842,7 @@ class NumbaCUDA(ComputeBackend):
             if a >= 0 and n:
                 lo[kk] = dv.box[0, a]
                 hi[kk] = dv.box[1, a]
-        dims = np.maximum(np.floor((hi - lo) / c.cell_size).astype(np.int64) + 1, 1)
-        dims[axes < 0] = 1
+        dims = grid_dims(lo, hi, c.cell_size, axes)
         ncells = int(dims.prod())
         # per particle axis: origin, cells, key stride
         stride_perm = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
