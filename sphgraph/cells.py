@@ -141,6 +141,11 @@ def cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach):
     return lo0, hi0, lo1, hi1, lo2, hi2, empty
 
 
+def reach_cells(h: float, cell_size: float) -> int:
+    """Cells a 2h support spans from a particle's own cell along each axis."""
+    return int(np.ceil(2.0 * h / cell_size - 1e-9))
+
+
 def grid_dims(lo, hi, cell_size, axes):
     """Cells along (fast, mid, slow) of a grid from lo to hi (permuted axes; 1 for a missing axis)."""
     dims = np.maximum(np.floor((hi - lo) / cell_size).astype(np.int64) + 1, 1)

@@ -63,12 +63,12 @@ class ComputeBackend:
         """Pairs within 2h over owned destinations (interior + halos), counted as
         DualSPHysics counts interactions (from each side; boundary rows count fluid
         neighbours only). Host-side, for benchmarks."""
-        from sphgraph.cells import build_grid
+        from sphgraph.cells import build_grid, reach_cells
         from . import cpu_kernels as K
         a = self.host_arrays(state)
         pos = np.ascontiguousarray(a["position"], dtype=np.float64)
         c = state.consts
-        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        reach = reach_cells(c.h, c.cell_size)
         total = 0
         kind = np.ascontiguousarray(a["kind"], dtype=np.int8)
         sources = [(pos, kind)] + [(np.asarray(h.pos, np.float64), np.asarray(h.kind, np.int8))

@@ -170,8 +170,8 @@ def _peer_buffer(dv, edge):
 def receive_edge(be, state, edge) -> None:
     """Bring a DeviceEdge's rows over, cut and bin them on the device: `edge` becomes the
     halo, with the device arrays the halo force kernels read."""
-    from sphgraph.cells import CellGrid, grid_dims
-    from .numba_cuda import _VEC, _count, _layout, _split, _wait
+    from sphgraph.cells import CellGrid, reach_cells
+    from .numba_cuda import _VEC, _count, _layout, _split, _wait, device_grid
     dv = state.extra["dev"]
     k, s = be._k(state), be._s(state)
     c = state.consts
@@ -209,20 +209,10 @@ def receive_edge(be, state, edge) -> None:
         edge.cells, edge.press = None, None
         be._copy_mark(state, "halo_d2d", False)
         return
-    # the grid over the kept rows' bounding box, as sphgraph.cells.build_grid
+    # the grid over the kept rows' bounding box
     axes = np.asarray(state.axes, np.int64)
-    lo, hi = np.zeros(3), np.zeros(3)
-    for kk in range(3):
-        if axes[kk] >= 0:
-            lo[kk], hi[kk] = hm[2 + axes[kk]], hm[5 + axes[kk]]
-    dims = grid_dims(lo, hi, c.cell_size, axes)
+    lo, hi, dims, o_ax, n_ax, s_ax = device_grid(hm[2:5], hm[5:8], c.cell_size, axes)
     ncells = int(dims.prod())
-    stride = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
-    o_ax, n_ax, s_ax = np.zeros(3), np.ones(3, np.int64), np.zeros(3, np.int64)
-    for kk in range(3):
-        a = axes[kk]
-        if a >= 0:
-            o_ax[a], n_ax[a], s_ax[a] = lo[kk], dims[kk], stride[kk]
     # the halo's arrays in a pooled buffer (numba_cuda._halo_buffer: lives while tasks read it)
     names = ["r" + ax for ax in _VEC[:dim]] + ["v" + ax for ax in _VEC[:dim]] + ["rho", "press"]
     hl, hnb = _layout([("start", np.int64, ncells + 1), ("kind", np.int8, kept)] + [(x, dt, kept) for x in names])
@@ -249,6 +239,6 @@ def receive_edge(be, state, edge) -> None:
                                                dd["rx"], dd["ry"], dd["rz"], dd["vx"], dd["vy"], dd["vz"],
                                                dd["rho"], dd["press"], dd["kind"])
     be._copy_mark(state, "halo_d2d", False)
-    reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+    reach = reach_cells(c.h, c.cell_size)
     edge.press = dd
     edge.cells = CellGrid(origin=lo, size=c.cell_size, dims=dims, axes=axes, start=None, reach=reach, hi=hi)

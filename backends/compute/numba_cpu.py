@@ -4,7 +4,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sphgraph.cells import build_grid, cell_keys, grid_takes
+from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
 from sphgraph.config import P_RHO0
 from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
@@ -51,7 +51,7 @@ class NumbaCPU(ComputeBackend):
     # -- cells -------------------------------------------------------------------------
     def _grid(self, state, pos, slow_span=None):
         c = state.consts
-        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        reach = reach_cells(c.h, c.cell_size)
         return build_grid(pos, c.cell_size, reach, state.axes, slow_span)
 
     def build_cells(self, state) -> None:

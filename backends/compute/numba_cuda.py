@@ -31,7 +31,7 @@ import os
 import numpy as np
 from numba import cuda
 
-from sphgraph.cells import grid_dims
+from sphgraph.cells import grid_dims, reach_cells
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
@@ -206,6 +206,26 @@ def _row_layout(dv, m):
     float64 positions, run-type records (history, vel4, rho_m1), kinds, ids."""
     return _layout([("pos", np.float64, m * dv.dim), ("f", dv.dtype, m * (dv.dim + 5)), ("kind", np.int8, m),
                     ("id", dv.arrays["id"].dtype, m)])
+
+
+def device_grid(box_lo, box_hi, cell_size, axes):
+    """The grid over a bounding box given along the particle axes, as
+    sphgraph.cells.build_grid makes it: origin, upper corner and cells along (fast, mid,
+    slow), and per particle axis the origin, cell count and key stride the key kernels take
+    (build_cells; a halo binned on the device, cuda_halo)."""
+    lo, hi = np.zeros(3), np.zeros(3)
+    for kk in range(3):
+        a = axes[kk]
+        if a >= 0:
+            lo[kk], hi[kk] = box_lo[a], box_hi[a]
+    dims = grid_dims(lo, hi, cell_size, axes)
+    stride = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
+    o_ax, n_ax, s_ax = np.zeros(3), np.ones(3, np.int64), np.zeros(3, np.int64)
+    for kk in range(3):
+        a = axes[kk]
+        if a >= 0:
+            o_ax[a], n_ax[a], s_ax[a] = lo[kk], dims[kk], stride[kk]
+    return lo, hi, dims, o_ax, n_ax, s_ax
 
 
 def _count(state, direction, kind, nbytes):
@@ -832,27 +852,12 @@ class NumbaCUDA(ComputeBackend):
         k = self._k(state)
         n, dim = dv.n, dv.dim
         c = state.consts
-        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        reach = reach_cells(c.h, c.cell_size)
         axes = np.asarray(state.axes, np.int64)
-        # grid over the rows' bounding box (from the last check), as sphgraph.cells.build_grid
-        lo = np.zeros(3)
-        hi = np.zeros(3)
-        for kk in range(3):
-            a = axes[kk]
-            if a >= 0 and n:
-                lo[kk] = dv.box[0, a]
-                hi[kk] = dv.box[1, a]
-        dims = grid_dims(lo, hi, c.cell_size, axes)
+        # grid over the rows' bounding box (from the last check)
+        box = dv.box if n else np.zeros((2, 3))
+        lo, _, dims, o_ax, n_ax, s_ax = device_grid(box[0], box[1], c.cell_size, axes)
         ncells = int(dims.prod())
-        # per particle axis: origin, cells, key stride
-        stride_perm = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
-        o_ax = np.zeros(3)
-        n_ax = np.ones(3, np.int64)
-        s_ax = np.zeros(3, np.int64)
-        for kk in range(3):
-            a = axes[kk]
-            if a >= 0:
-                o_ax[a], n_ax[a], s_ax[a] = lo[kk], dims[kk], stride_perm[kk]
         # kind-split keys: fluid cells 0..ncells-1, boundary cells ncells..2 ncells-1
         nk = 2 * ncells
         if dv.cell_cap < nk + 1:
@@ -952,7 +957,7 @@ class NumbaCUDA(ComputeBackend):
             halo.cells = None
             halo.press = None
             return
-        reach = int(np.ceil(2.0 * c.h / c.cell_size - 1e-9))
+        reach = reach_cells(c.h, c.cell_size)
         grid, perm = build_grid(np.asarray(halo.pos, np.float64), c.cell_size, reach, state.axes)
         halo.pos, halo.vel = halo.pos[perm], halo.vel[perm]
         halo.rho, halo.kind = halo.rho[perm], halo.kind[perm]
