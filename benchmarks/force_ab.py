@@ -4,9 +4,8 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:MAXREG:BLOCK[:FLAG ...] (KERNEL f, fv or fc: cuda_kernels.FORCES; flags:
-notrim, fv/fc with whole cells, as right after a step that moved rows since the sort; qN,
-k_forces_fc's ring of N entries a lane; rN, its bodies run while N/8 of the lanes hold one). The cells are
+A variant is KERNEL:MAXREG:BLOCK[:notrim] (KERNEL f or fv: cuda_kernels.FORCES; notrim:
+fv with whole cells, as right after a step that moved rows since the sort). The cells are
 sorted again before the timings, so fv trims its rows with no slack.
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
@@ -53,19 +52,11 @@ def main(argv=None):
     sim.compute.build_cells(st)          # freshly sorted: fv trims its rows with no slack
     cuda.synchronize()
 
-    keep += (CK.QCAP, CK.READY8)
-
     def setv(v):
-        f, mr, fb, *flags = v.split(":")
+        f, mr, fb, *trim = v.split(":")
         CK.FORCES = f
         CK.MAXREG, CK.FORCE_BLOCK = int(mr), int(fb)
-        CK.QCAP, CK.READY8 = keep[3:]
-        dv.moved = np.inf if "notrim" in flags else 0.0
-        for fl in flags:          # k_forces_fc: qN a lane's ring, rN the bodies' threshold N/8
-            if fl[0] == "q":
-                CK.QCAP = int(fl[1:])
-            elif fl[0] == "r":
-                CK.READY8 = int(fl[1:])
+        dv.moved = np.inf if trim == ["notrim"] else 0.0
 
     def outputs():
         A = dv.A()
@@ -95,7 +86,7 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.QCAP, CK.READY8 = keep
+    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK = keep
     dv.moved = 0.0
     pairs = sim.compute.count_pairs(st)
     base = None

@@ -7,7 +7,6 @@
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
 #         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m ipc ipc-tests ipc-overlap mem forceab-rt
-#         forceab-fc check-fc ncu-fc
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -96,21 +95,6 @@ for s in "$@"; do
     ipc-tests) stage ipc_tests 400 python3 -m pytest -q -s -m gpu -p no:cacheprovider tests/test_cuda_halo.py ;;
     # device memory beyond the arrays (modules, work buffers) at 4.4 M
     mem)      stage mem 150 python3 benchmarks/gpu_memory.py --dp 0.006 --json "$OUT/memory.json" ;;
-    # k_forces_fc (queued candidates, bodies at the warp's width) against fv: caps, ring, threshold
-    forceab-fc) stage forceab_fc 300 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
-                --variants fv:64:128 fc:64:128 fc:64:128:r6 fc:64:128:r5 fc:72:128 fc:80:128 \
-                fc:64:128:q16 fc:64:128:q64 fc:64:64:q64 fv:56:128 --json "$OUT/force_ab_fc.json" ;;
-    # SPHERIC 2 at 4.4 and 13 M with k_forces_fc, 30 timed steps
-    check-fc) stage check_fc 150 env SPHGRAPH_CUDA_FORCES=fc python3 benchmarks/gpu_bench.py --dp 0.006 0.004 \
-                --steps 30 --warmup 3 --profile-steps 2 --json "$OUT/spheric2_fc.json" ;;
-    # Nsight Compute on one launch of each fluid kernel (fv, fc) at 1.1 M
-    ncu-fc)   NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
-              stage ncu_fc 240 "$NCU" --clock-control none --target-processes all -k regex:k_forces_f \
-                --launch-skip 2 --launch-count 2 --section SpeedOfLight --section Occupancy \
-                --section WarpStateStats --section SchedulerStats --section LaunchStats \
-                --metrics smsp__thread_inst_executed_per_inst_executed.ratio,smsp__inst_executed.sum \
-                python3 benchmarks/force_ab.py --dp 0.01 --warmup 1 --reps 1 --rounds 1 \
-                --variants fv:64:128 fc:64:128 ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

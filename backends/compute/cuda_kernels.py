@@ -25,7 +25,7 @@ import os
 import types
 
 import numpy as np
-from numba import cuda, int32, njit
+from numba import cuda, njit
 from numba.core.dispatcher import Dispatcher
 
 from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
@@ -46,8 +46,8 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # instructions: 0.6-0.8x, dropped.
 RT = np.float64      # the run's float type: each kernel clone gets its own (_clone)
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
-if FORCES not in ("f", "fv", "fc"):
-    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f, fv or fc")
+if FORCES not in ("f", "fv"):
+    raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
 
 
 # ------------------------------------------------------------------------------- retargeting
@@ -1234,29 +1234,18 @@ def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv
     drz = za - zb
     r2 = drx * drx + dry * dry + drz * drz
     if not (r2 > support2 or r2 < 1e-18):
-        axx, ayy, azz, arr, dd, cc, vmax = _fv_sum(vel4, j4, b_bound, drx, dry, drz, r2, pb, p_a, vxa, vya, vza,
-                                                   rho_a, inv_rho_a, mass_b, prm, kernel_id, ddt_kind, laminar,
-                                                   axx, ayy, azz, arr, dd, cc, vmax)
-    return axx, ayy, azz, arr, dd, cc, vmax
-
-
-@njit(inline="always")
-def _fv_sum(vel4, j4, b_bound, drx, dry, drz, r2, pb, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, prm,
-            kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """The pair body of a neighbour within reach (record j4, r_ab = (drx, dry, drz)) added
-    to the sums: k_forces_fv and k_forces_fc."""
-    vxb, vyb, vzb, rho_b = load4(vel4, j4)
-    fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
-                                            inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
-                                            ddt_kind, laminar)
-    axx += fx
-    ayy += fy
-    azz += fz
-    arr += fr
-    dd += fd
-    cc |= fc
-    if fv > vmax:
-        vmax = fv
+        vxb, vyb, vzb, rho_b = load4(vel4, j4)
+        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
+                                                inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
+                                                ddt_kind, laminar)
+        axx += fx
+        ayy += fy
+        azz += fz
+        arr += fr
+        dd += fd
+        cc |= fc
+        if fv > vmax:
+            vmax = fv
     return axx, ayy, azz, arr, dd, cc, vmax
 
 
@@ -1414,167 +1403,6 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
     # device function: the simulator runs cuda.* only in kernel bodies)
     sh = cuda.shared.array(1, RT)
-    if cuda.threadIdx.x == 0:
-        sh[0] = vmax
-    cuda.syncthreads()
-    if vmax > sh[0]:
-        cuda.atomic.max(sh, 0, vmax)
-    cuda.syncthreads()
-    if cuda.threadIdx.x == 0:
-        cuda.atomic.max(visc_, 0, sh[0])
-
-
-# k_forces_fc: the pair bodies of a warp run at nearly its full width. In k_forces_fv a warp
-# runs the body for a candidate whenever one of its lanes accepts it, and a lane accepts about
-# half its (trimmed) candidates, so the body (~85 of the ~105 instructions a candidate costs)
-# runs at about half the warp's width. Here the candidates are only tested (one 16-byte load
-# and r^2) and each lane queues the accepted ones in shared memory (a ring of QCAP entries a
-# lane); after each row of cells the warp runs the body, one queued neighbour a lane, while
-# at least READY8/8 of its active lanes hold one. A lane takes its
-# neighbours first in, first out, so the sums are k_forces_fv's, in the same order.
-QCAP = int(os.environ.get("SPHGRAPH_CUDA_QCAP", "32"))       # a lane's ring (a power of 2)
-READY8 = int(os.environ.get("SPHGRAPH_CUDA_READY8", "7"))     # bodies while >= READY8/8 lanes hold one
-SIM_READY = 3        # the simulator has no warp votes: a lane runs its bodies while it holds SIM_READY
-if QCAP < 2 or QCAP & (QCAP - 1):
-    raise ValueError(f"SPHGRAPH_CUDA_QCAP={QCAP}: expected a power of 2 >= 2")
-
-
-if SIMULATOR:
-    @njit(inline="always")
-    def _warp_need(ready8):
-        """(mask, lanes) for _warp_ready (simulator: per lane; the sums do not depend on when)"""
-        return 0, SIM_READY
-
-    @njit(inline="always")
-    def _warp_ready(queued, mask, need):
-        return queued >= need
-else:
-    @njit(inline="always")
-    def _warp_need(ready8):
-        """The warp's active lanes and how many of them must hold a neighbour (ready8/8)."""
-        m = cuda.activemask()
-        return m, (cuda.popc(m) * ready8 + 7) >> 3
-
-    @njit(inline="always")
-    def _warp_ready(queued, mask, need):
-        """Run the bodies: `need` of the lanes in `mask` hold a neighbour (the same answer on
-        every lane of the mask, so the loop around it stays warp-uniform)."""
-        return cuda.popc(cuda.ballot_sync(mask, queued > 0)) >= need
-
-
-@njit(inline="always")
-def _fc_pop(queue, rp, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-            kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """The body for the neighbour queued at slot rp (j >= 0 fluid, -1 - j boundary)."""
-    e = queue[rp]
-    bb = e < 0
-    j4 = 4 * ((-1 - e) if bb else e)
-    xb, yb, zb, pb = load4(pos4, j4)
-    drx = xa - xb
-    dry = ya - yb
-    drz = za - zb
-    r2 = drx * drx + dry * dry + drz * drz
-    return _fv_sum(vel4, j4, bb, drx, dry, drz, r2, pb, p_a, vxa, vya, vza, rho_a, inv_rho_a,
-                   mb if bb else mf, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-
-
-@njit(inline="always")
-def _fc_test(j, jend, bound, queue, wp, rp, cnt, qstep, qmask, qcap, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza,
-             rho_a, inv_rho_a, mf, mb, support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """k_forces_fc: candidates j..jend-1 (boundary ones when `bound`) tested, the accepted
-    ones queued (ring slots wp (write) and rp (read) a step qstep apart, cnt queued; a
-    full ring first runs the lane's oldest, alone: rare)."""
-    while j < jend:
-        xb, yb, zb, pb = load4(pos4, 4 * j)
-        drx = xa - xb
-        dry = ya - yb
-        drz = za - zb
-        r2 = drx * drx + dry * dry + drz * drz
-        if not (r2 > support2 or r2 < 1e-18):
-            if cnt == qcap:
-                axx, ayy, azz, arr, dd, cc, vmax = _fc_pop(
-                    queue, rp, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-                    kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-                rp = int32((rp + qstep) & qmask)
-                cnt = int32(cnt - 1)
-            queue[wp] = (-1 - j) if bound else j
-            wp = int32((wp + qstep) & qmask)      # 32-bit slots and counts: fewer instructions
-            cnt = int32(cnt + 1)
-        j += 1
-    return wp, rp, cnt, axx, ayy, azz, arr, dd, cc, vmax
-
-
-def k_forces_fc(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
-                a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_fv (same arguments, same sums in the same order) with the accepted
-    candidates queued and their pair bodies run at the warp's width (see QCAP above).
-    Compile-time constants besides k_forces_fv's: QSHAPE = QCAP * QS slots, QS the block
-    size (a lane's ring holds slots tid, tid + QS, ...), READY8."""
-    prm = cuda.const.array_like(PRMC)
-    kernel_id = KID
-    ddt_kind = DDTK
-    laminar = LAM
-    queue = cuda.shared.array(QSHAPE, int32)
-    i = cuda.grid(1) + i0
-    i = min(i, i1 - 1)    # spare threads repeat the last row (see k_forces_fv)
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
-    d4 = 4 * i
-    xa, ya, za, p_a = load4(pos4, d4)
-    vxa, vya, vza, rho_a = load4(vel4, d4)
-    zero = rho_a - rho_a
-    q0, q1, q2, lo1, hi1, lo2, hi2 = _window(xa, ya, za, zero, o1, o2, inv_size, pad, n1, n2, a0, a1, a2)
-    size = 1.0 / inv_size
-    reach2 = pad * pad
-    inv_rho_a = 1.0 / rho_a
-    axx = zero
-    ayy = zero
-    azz = zero
-    arr = zero
-    dd = zero
-    cc = 0
-    vmax = zero
-    wp = int32(cuda.threadIdx.x)     # the lane's ring: slots tid + QS k, k = 0 .. QCAP - 1
-    rp = wp
-    cnt = int32(0)
-    qm = QSHAPE - 1
-    for c2 in range(lo2, hi2 + 1):
-        for c1 in range(lo1, hi1 + 1):
-            rr, clo, chi = _row_cut(q0, q1, q2, c1, c2, o0, o1, o2, size, inv_size, reach2, n0, a1, a2, zero)
-            if clo <= chi:
-                row = (c2 * n1 + c1) * n0
-                lo_t = q0 - rr - tpad
-                hi_t = q0 + rr + tpad
-                j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
-                b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
-                wp, rp, cnt, axx, ayy, azz, arr, dd, cc, vmax = _fc_test(
-                    j0, j1, False, queue, wp, rp, cnt, QS, qm, QCAP, pos4, vel4, xa, ya, za, p_a, vxa, vya,
-                    vza, rho_a, inv_rho_a, mf, mb, support2, prm, kernel_id, ddt_kind, laminar,
-                    axx, ayy, azz, arr, dd, cc, vmax)
-                wp, rp, cnt, axx, ayy, azz, arr, dd, cc, vmax = _fc_test(
-                    b0, b1, True, queue, wp, rp, cnt, QS, qm, QCAP, pos4, vel4, xa, ya, za, p_a, vxa, vya,
-                    vza, rho_a, inv_rho_a, mf, mb, support2, prm, kernel_id, ddt_kind, laminar,
-                    axx, ayy, azz, arr, dd, cc, vmax)
-            # after each row of cells, where the warp's lanes meet again (their windows of
-            # rows are the same but at the warp's edges): the bodies at (nearly) full width
-            mask, need = _warp_need(READY8)
-            while _warp_ready(cnt, mask, need):
-                if cnt > 0:
-                    axx, ayy, azz, arr, dd, cc, vmax = _fc_pop(
-                        queue, rp, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-                        kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-                    rp = int32((rp + QS) & qm)
-                    cnt = int32(cnt - 1)
-    while cnt > 0:            # what is left in the lane's ring
-        axx, ayy, azz, arr, dd, cc, vmax = _fc_pop(
-            queue, rp, pos4, vel4, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, mb, prm,
-            kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-        rp = int32((rp + QS) & qm)
-        cnt = int32(cnt - 1)
-    _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
-                 ax_, ay_, az_, ar_, ddt_, cancel_)
-    sh = cuda.shared.array(1, RT)     # the viscous-dt term, one maximum per block (k_forces_fv)
     if cuda.threadIdx.x == 0:
         sh[0] = vmax
     cuda.syncthreads()
@@ -1843,19 +1671,13 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
     mr = (MAXREG if dt == np.float32 else 0) if max_registers is None else int(max_registers)
     pc = np.ascontiguousarray(prm, dt)
     key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES)
-    if FORCES == "fc":        # the queue's shape and policy are compile-time constants
-        if FORCE_BLOCK & (FORCE_BLOCK - 1):
-            raise ValueError(f"SPHGRAPH_CUDA_FORCE_BLOCK={FORCE_BLOCK}: k_forces_fc needs a power of 2")
-        key += (QCAP, FORCE_BLOCK, READY8)
     if key not in _FORCES:
         memo = {}
-        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar),
-                 "QSHAPE": QCAP * FORCE_BLOCK, "QS": FORCE_BLOCK, "QCAP": QCAP, "READY8": READY8}
+        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar)}
         out = {}
         out["relative"] = FORCES != "f"      # k_forces_fv's arguments
-        srcs = {"f": ("k_forces_f", "k_forces_b"), "fv": ("k_forces_fv", "k_forces_bv"),
-                "fc": ("k_forces_fc", "k_forces_bv")}[FORCES]
-        for name, src in zip(("k_forces_f", "k_forces_b"), srcs):
+        for name in ("k_forces_f", "k_forces_b"):
+            src = name if FORCES == "f" else name + "v"     # fv: k_forces_fv / k_forces_bv
             fn = _clone(globals()[src], dt, memo, extra)
             if SIMULATOR:
                 out[name] = cuda.jit(fn)
