@@ -95,6 +95,24 @@ for s in "$@"; do
     ipc-tests) stage ipc_tests 400 python3 -m pytest -q -s -m gpu -p no:cacheprovider tests/test_cuda_halo.py ;;
     # device memory beyond the arrays (modules, work buffers) at 4.4 M
     mem)      stage mem 150 python3 benchmarks/gpu_memory.py --dp 0.006 --json "$OUT/memory.json" ;;
+    # the 32-bit loop indices, unwrapped loads and the folded gravity terms: fv against f, caps
+    # (a run of 2026-12-02 07:01 also had fv with each record loaded one ahead: 0.95x, dropped)
+    forceab-i32) stage forceab_i32 200 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants f:64:128 fv:64:128 fv:56:128 \
+                --json "$OUT/force_ab_i32.json" ;;
+    # SPHERIC 2 at 4.4 and 13 M with the force kernels capped at 56 registers, 30 timed steps
+    check-cap56) stage check_cap56 120 env SPHGRAPH_CUDA_MAXREG=56 python3 benchmarks/gpu_bench.py --dp 0.006 0.004 \
+                --steps 30 --warmup 3 --profile-steps 2 --json "$OUT/spheric2_cap56.json" ;;
+    # Nsight Compute source counters (warp instructions executed per SASS line) of the interior
+    # force kernels at 4.4 M: where the instructions go (row set-up, candidate tests, pair bodies)
+    ncu-src)  NCU=$(command -v ncu || ls /opt/nvidia/nsight-compute/*/ncu 2>/dev/null | head -1)
+              stage ncu_src 240 "$NCU" --clock-control none -o "$OUT/src" --section SourceCounters \
+                --metrics smsp__inst_executed.sum,smsp__thread_inst_executed_per_inst_executed.ratio,gpu__time_duration.sum \
+                -k regex:k_forces_ --launch-skip 2 --launch-count 2 python3 benchmarks/force_ab.py --dp 0.006 \
+                --warmup 1 --reps 1 --rounds 1 --variants fv:64:128
+              "$NCU" -i "$OUT/src.ncu-rep" --page source --csv --print-source sass >"$OUT/ncu_src.csv" 2>&1
+              "$NCU" -i "$OUT/src.ncu-rep" --page details --csv >"$OUT/ncu_details.csv" 2>&1
+              rm -f "$OUT/src.ncu-rep" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

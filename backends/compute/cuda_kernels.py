@@ -25,7 +25,7 @@ import os
 import types
 
 import numpy as np
-from numba import cuda, njit
+from numba import cuda, int32, njit
 from numba.core.dispatcher import Dispatcher
 
 from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
@@ -45,6 +45,7 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # raised the warp's active lanes from 20.7 to 27 of 32 but executed 15-30 % more
 # instructions: 0.6-0.8x, dropped.
 RT = np.float64      # the run's float type: each kernel clone gets its own (_clone)
+FULL_MASK = np.uint32(0xFFFFFFFF)    # all 32 lanes of a warp (shuffles)
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -82,6 +83,7 @@ def _clone(f, dtype, memo, extra=None):
         code = _cast_consts(code, np.dtype(dtype).type, remap)
     g = dict(f.__globals__)
     g["RT"] = np.dtype(dtype).type            # the run's float type (shared arrays)
+    g.update(_DEVICE_ONLY)                    # intrinsics in place of their Python twins
     g.update(extra or {})
     for name in code.co_names:
         v = g.get(name)
@@ -114,6 +116,14 @@ def _load4_py(a, i):
     return a[i], a[i + 1], a[i + 2], a[i + 3]
 
 
+@njit(inline="always")
+def _at_py(a, i):
+    return a[i]
+
+
+at = _at_py      # CPU and simulator (tests of the helpers); CUDA copies get _at_nowrap (_clone)
+_DEVICE_ONLY = {}
+
 if SIMULATOR:
     load4 = _load4_py
 else:
@@ -140,6 +150,25 @@ else:
             vals = [builder.extract_element(vec, _ir.Constant(_ir.IntType(32), k)) for k in range(4)]
             return context.make_tuple(builder, sig.return_type, vals)
         return sig, codegen
+
+    @_intrinsic
+    def _at_nowrap(typingctx, arr, idx):
+        """a[i] for an index known to be in range and >= 0: numba's a[i] also wraps a
+        negative signed index around (a compare and an add on 64 bits at every load), which
+        the bisections and cell ranges of the force kernels pay per step of their loops."""
+        sig = arr.dtype(arr, idx)
+
+        def codegen(context, builder, sig, args):
+            aryty = sig.args[0]
+            ary = context.make_array(aryty)(context, builder, args[0])
+            ptr = _cg.get_item_pointer2(context, builder, data=ary.data,
+                                        shape=_cg.unpack_tuple(builder, ary.shape),
+                                        strides=_cg.unpack_tuple(builder, ary.strides),
+                                        layout=aryty.layout, inds=[args[1]], wraparound=False)
+            return builder.load(ptr)
+        return sig, codegen
+
+    _DEVICE_ONLY["at"] = _at_nowrap
 
 
 # ------------------------------------------------------------------------------- kernels
@@ -1224,11 +1253,10 @@ def _store_boundary(i, final, dim3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_
 
 
 @njit(inline="always")
-def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2, prm,
-             kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """k_forces_fv's test and pair body for the record at j4: the sums (axx .. vmax) with
-    its contribution when it is within reach."""
-    xb, yb, zb, pb = load4(pos4, j4)
+def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2,
+             prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
+    """k_forces_fv's test and pair body for the candidate at record j4 (position record
+    xb, yb, zb, pb): the sums (axx .. vmax) with its contribution when it is within reach."""
     drx = xa - xb
     dry = ya - yb
     drz = za - zb
@@ -1250,13 +1278,35 @@ def _fv_pair(pos4, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv
 
 
 @njit(inline="always")
+def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+             kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
+    """k_forces_fv's loop over the candidates j0..j1-1 of one part of a row (fluid, or
+    boundary with `b_bound`), on a 32-bit row index (rows < 2^31: `start` is int32): with a
+    64-bit record offset the loop and address took 10 instructions a candidate (64-bit
+    adds and compares), 4 with this; numba's range() would add a trip count and a second
+    counter. (Loading each record one candidate ahead, so that the r^2 test need not wait
+    on its load, was 6 % slower on the H200: the register rotation costs 7 instructions.)"""
+    j = int32(j0)
+    je = int32(j1)
+    while j < je:
+        xb, yb, zb, pb = load4(pos4, 4 * j)
+        axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+            xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+            support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+        j = int32(j + 1)
+    return axx, ayy, azz, arr, dd, cc, vmax
+
+
+@njit(inline="always")
 def _first_at_least(pos4, comp, lo, hi, t):
     """First j in [lo, hi) whose coordinate `comp` (pos4[4 j + comp]) is >= t, hi if none:
     a cell's rows are sorted by that coordinate (k_sort_cells_by)."""
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if pos4[4 * mid + comp] < t:
-            lo = mid + 1
+    lo = int32(lo)
+    hi = int32(hi)
+    while lo < hi:        # 32-bit: rows < 2^31 (see k_forces_fv)
+        mid = int32((lo + hi) >> 1)       # lo, hi >= 0: a shift, not numba's floor division
+        if at(pos4, 4 * mid + comp) < t:
+            lo = int32(mid + 1)
         else:
             hi = mid
     return lo
@@ -1265,10 +1315,12 @@ def _first_at_least(pos4, comp, lo, hi, t):
 @njit(inline="always")
 def _first_above(pos4, comp, lo, hi, t):
     """First j in [lo, hi) whose coordinate `comp` is > t, hi if none (sorted as above)."""
+    lo = int32(lo)
+    hi = int32(hi)
     while lo < hi:
-        mid = (lo + hi) // 2
-        if pos4[4 * mid + comp] <= t:
-            lo = mid + 1
+        mid = int32((lo + hi) >> 1)
+        if at(pos4, 4 * mid + comp) <= t:
+            lo = int32(mid + 1)
         else:
             hi = mid
     return lo
@@ -1279,10 +1331,10 @@ def _trimmed(pos4, start, base, clo, chi, comp, lo_t, hi_t):
     """The rows of cells clo..chi of the row at `base` whose coordinate `comp` lies in
     [lo_t, hi_t]: the cells are consecutive along `comp` and each is sorted by it, so
     the ends are found in the first and the last cell only."""
-    s0 = start[base + clo]
-    j0 = _first_at_least(pos4, comp, s0, start[base + clo + 1], lo_t)
-    e0 = start[base + chi]
-    j1 = _first_above(pos4, comp, max(e0, j0), start[base + chi + 1], hi_t)
+    s0 = at(start, base + clo)
+    j0 = _first_at_least(pos4, comp, s0, at(start, base + clo + 1), lo_t)
+    e0 = at(start, base + chi)
+    j1 = _first_above(pos4, comp, max(e0, j0), at(start, base + chi + 1), hi_t)
     return j0, j1
 
 
@@ -1351,7 +1403,7 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     laminar = LAM
     i = cuda.grid(1) + i0
     i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
-    #                       stores) so that every thread reaches the block maximum below
+    #                       stores) so that every lane reaches the warp maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     mb = prm[P_MASS_B]
@@ -1384,33 +1436,25 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             # (both ranges first: fewer values live across the loops, fewer registers)
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
-            # while loops over the record offset: numba's range() lowers to a trip count
-            # and a second 64-bit counter (8 loop-control instructions a candidate, 4 here)
-            j4 = 4 * j0
-            while j4 < 4 * j1:
-                axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-                    pos4, vel4, j4, False, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mf, support2,
-                    prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-                j4 += 4
-            j4 = 4 * b0
-            while j4 < 4 * b1:
-                axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-                    pos4, vel4, j4, True, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mb, support2,
-                    prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-                j4 += 4
+            axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
+                pos4, vel4, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+            axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
+                pos4, vel4, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
-    sh = cuda.shared.array(1, RT)
-    if cuda.threadIdx.x == 0:
-        sh[0] = vmax
-    cuda.syncthreads()
-    if vmax > sh[0]:
-        cuda.atomic.max(sh, 0, vmax)
-    cuda.syncthreads()
-    if cuda.threadIdx.x == 0:
-        cuda.atomic.max(visc_, 0, sh[0])
+    # the viscous-dt term into visc_[0]: the warp's maximum, one atomic a warp (no block
+    # barrier, at which a block's warps waited for its slowest: 9 % of the fluid kernel's
+    # stall samples); written out here: the simulator runs cuda.* only in kernel bodies, and
+    # has no warp shuffles (there, one atomic a row)
+    if SIMULATOR:
+        cuda.atomic.max(visc_, 0, vmax)
+    else:
+        for off in (16, 8, 4, 2, 1):
+            vmax = max(vmax, cuda.shfl_down_sync(FULL_MASK, vmax, off))
+        if cuda.laneid == 0:
+            cuda.atomic.max(visc_, 0, vmax)
 
 
 def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
@@ -1422,7 +1466,7 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     kernel_id = KID
     i = cuda.grid(1) + i0
     i = min(i, i1 - 1)    # a block's spare threads repeat the last row (same values, same
-    #                       stores) so that every thread reaches the block maximum below
+    #                       stores) so that every lane reaches the warp maximum below
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     d4 = 4 * i
@@ -1440,8 +1484,10 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             if clo > chi:
                 continue
             j0, j1 = _trimmed(pos4, start, (c2 * n1 + c1) * n0, clo, chi, a0, q0 - rr - tpad, q0 + rr + tpad)
-            j4 = 4 * j0
-            while j4 < 4 * j1:      # a while loop over the record offset, as in k_forces_fv
+            j = int32(j0)
+            je = int32(j1)
+            while j < je:           # a 32-bit row index, as in k_forces_fv (_fv_part)
+                j4 = 4 * j
                 xb, yb, zb, pb = load4(pos4, j4)
                 drx = xa - xb
                 dry = ya - yb
@@ -1454,19 +1500,16 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
                     arr += fr
                     if fv > vmax:
                         vmax = fv
-                j4 += 4
+                j = int32(j + 1)
     _store_boundary(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
-    sh = cuda.shared.array(1, RT)
-    if cuda.threadIdx.x == 0:
-        sh[0] = vmax
-    cuda.syncthreads()
-    if vmax > sh[0]:
-        cuda.atomic.max(sh, 0, vmax)
-    cuda.syncthreads()
-    if cuda.threadIdx.x == 0:
-        cuda.atomic.max(visc_, 0, sh[0])
+    # the viscous-dt term: the warp's maximum, one atomic a warp (k_forces_fv)
+    if SIMULATOR:
+        cuda.atomic.max(visc_, 0, vmax)
+    else:
+        for off in (16, 8, 4, 2, 1):
+            vmax = max(vmax, cuda.shfl_down_sync(FULL_MASK, vmax, off))
+        if cuda.laneid == 0:
+            cuda.atomic.max(visc_, 0, vmax)
 
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
@@ -1656,7 +1699,10 @@ def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
 # register cap of the force kernels, float32 (0: the compiler's choice). Measured on the H100
 # (SPHERIC 2, 2026-11-22): uncapped k_forces_f takes 87 registers (31 % occupancy); capped at
 # 64 (50 %, 64 B of spills) it is 15 % faster at 4.4 M and 9 % at 13 M, 2 % at 1.1 M.
-MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "64"))
+# H200, 2026-12-02 (k_forces_fv with 32-bit loop indices): cap 56 is 3 % faster than 64 per
+# forces at 4.4 M (7.23 / 7.45 ms), 72 is 10 % slower; its 48 B stack frame stays within the
+# driver's default per-thread reservation (peak device memory unchanged, 98.3 B a particle).
+MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "56"))
 _FORCES: dict = {}
 
 
