@@ -4,8 +4,9 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:MAXREG:BLOCK[:notrim] (KERNEL f or fv: cuda_kernels.FORCES; notrim:
-fv with whole cells, as right after a step that moved rows since the sort). The cells are
+A variant is KERNEL:MAXREG:BLOCK[:FLAG ...] (KERNEL f or fv: cuda_kernels.FORCES; flags:
+notrim, fv with whole cells, as right after a step that moved rows since the sort; u1 / u2,
+fv's candidates one or two a turn, cuda_kernels.UNROLL). The cells are
 sorted again before the timings, so fv trims its rows with no slack.
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
@@ -52,11 +53,14 @@ def main(argv=None):
     sim.compute.build_cells(st)          # freshly sorted: fv trims its rows with no slack
     cuda.synchronize()
 
+    keep += (CK.UNROLL,)
+
     def setv(v):
-        f, mr, fb, *trim = v.split(":")
+        f, mr, fb, *flags = v.split(":")
         CK.FORCES = f
         CK.MAXREG, CK.FORCE_BLOCK = int(mr), int(fb)
-        dv.moved = np.inf if trim == ["notrim"] else 0.0
+        CK.UNROLL = 2 if "u2" in flags else (1 if "u1" in flags else keep[3])
+        dv.moved = np.inf if "notrim" in flags else 0.0
 
     def outputs():
         A = dv.A()
@@ -86,7 +90,7 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK = keep
+    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL = keep
     dv.moved = 0.0
     pairs = sim.compute.count_pairs(st)
     base = None

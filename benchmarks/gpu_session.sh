@@ -113,6 +113,13 @@ for s in "$@"; do
               "$NCU" -i "$OUT/src.ncu-rep" --page source --csv --print-source sass >"$OUT/ncu_src.csv" 2>&1
               "$NCU" -i "$OUT/src.ncu-rep" --page details --csv >"$OUT/ncu_details.csv" 2>&1
               rm -f "$OUT/src.ncu-rep" ;;
+    # the final tree: two candidates a turn (u2) against one (u1), caps 56 / 64; then the
+    # faster of the cap-56 pair is exported (SPHGRAPH_CUDA_UNROLL) for the stages after it
+    forceab-u2) stage forceab_u2 200 python3 benchmarks/force_ab.py --dp 0.006 --warmup 4 --reps 10 --rounds 3 \
+                --variants f:64:128 fv:56:128:u1 fv:56:128:u2 fv:64:128:u2 --json "$OUT/force_ab_u2.json"
+              export SPHGRAPH_CUDA_UNROLL=$(python3 -c "import json; v = json.load(open('$OUT/force_ab_u2.json'))['variants']; \
+print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 2)" 2>/dev/null || echo 2)
+              echo "SPHGRAPH_CUDA_UNROLL=$SPHGRAPH_CUDA_UNROLL" | tee "$OUT/unroll.txt" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

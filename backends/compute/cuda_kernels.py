@@ -46,6 +46,9 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 # instructions: 0.6-0.8x, dropped.
 RT = np.float64      # the run's float type: each kernel clone gets its own (_clone)
 FULL_MASK = np.uint32(0xFFFFFFFF)    # all 32 lanes of a warp (shuffles)
+UNROLL = int(os.environ.get("SPHGRAPH_CUDA_UNROLL", "2"))   # k_forces_fv: candidates a turn (_fv_part)
+if UNROLL not in (1, 2):
+    raise ValueError(f"SPHGRAPH_CUDA_UNROLL={UNROLL}: expected 1 or 2")
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -1278,22 +1281,39 @@ def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, 
 
 
 @njit(inline="always")
-def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
-             kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
+def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, unroll, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2,
+             prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
     """k_forces_fv's loop over the candidates j0..j1-1 of one part of a row (fluid, or
     boundary with `b_bound`), on a 32-bit row index (rows < 2^31: `start` is int32): with a
     64-bit record offset the loop and address took 10 instructions a candidate (64-bit
     adds and compares), 4 with this; numba's range() would add a trip count and a second
-    counter. (Loading each record one candidate ahead, so that the r^2 test need not wait
-    on its load, was 6 % slower on the H200: the register rotation costs 7 instructions.)"""
+    counter. With `unroll` 2 (a compile-time constant) two candidates a turn, both records
+    loaded first, so that the second load's wait overlaps the first's (the same sums in the
+    same order). (Loading each record one candidate ahead instead was 6 % slower on the
+    H200: the register rotation costs 7 instructions a candidate.)"""
     j = int32(j0)
     je = int32(j1)
-    while j < je:
-        xb, yb, zb, pb = load4(pos4, 4 * j)
-        axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-            xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
-            support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
-        j = int32(j + 1)
+    if unroll == 2:
+        jl = int32(je - 1)
+        while j < je:
+            j2 = int32(j + 1)
+            xb, yb, zb, pb = load4(pos4, 4 * j)
+            xc, yc, zc, pc = load4(pos4, 4 * min(j2, jl))
+            axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+                xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+                support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+            if j2 < je:
+                axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+                    xc, yc, zc, pc, vel4, 4 * j2, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a,
+                    mass_b, support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+            j = int32(j + 2)
+    else:
+        while j < je:
+            xb, yb, zb, pb = load4(pos4, 4 * j)
+            axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
+                xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+                support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
+            j = int32(j + 1)
     return axx, ayy, azz, arr, dd, cc, vmax
 
 
@@ -1437,10 +1457,10 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, j0, j1, False, mf, UNR, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, b0, b1, True, mb, UNR, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
@@ -1716,10 +1736,10 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
     fm = (dt == np.float32) if fastmath is None else bool(fastmath)
     mr = (MAXREG if dt == np.float32 else 0) if max_registers is None else int(max_registers)
     pc = np.ascontiguousarray(prm, dt)
-    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES)
+    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES, UNROLL)
     if key not in _FORCES:
         memo = {}
-        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar)}
+        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar), "UNR": UNROLL}
         out = {}
         out["relative"] = FORCES != "f"      # k_forces_fv's arguments
         for name in ("k_forces_f", "k_forces_b"):
