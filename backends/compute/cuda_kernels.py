@@ -1720,7 +1720,7 @@ def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
 # (SPHERIC 2, 2026-11-22): uncapped k_forces_f takes 87 registers (31 % occupancy); capped at
 # 64 (50 %, 64 B of spills) it is 15 % faster at 4.4 M and 9 % at 13 M, 2 % at 1.1 M.
 # H200, 2026-12-02 (k_forces_fv with 32-bit loop indices): cap 56 is 3 % faster than 64 per
-# forces at 4.4 M (7.23 / 7.45 ms), 72 is 10 % slower; its 48 B stack frame stays within the
+# forces at 4.4 M (7.23 / 7.45 ms), 72 is 10 % slower; its 48-56 B stack frame stays within the
 # driver's default per-thread reservation (peak device memory unchanged, 98.3 B a particle).
 MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "56"))
 _FORCES: dict = {}
