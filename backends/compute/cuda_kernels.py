@@ -134,6 +134,14 @@ else:
     from numba.core import cgutils as _cg, types as _nt
     from numba.core.extending import intrinsic as _intrinsic  # noqa: E402
 
+    def _item_ptr(context, builder, aryty, ary_val, idx):
+        """Pointer to element idx of an array argument, without the negative-index wraparound."""
+        ary = context.make_array(aryty)(context, builder, ary_val)
+        return _cg.get_item_pointer2(context, builder, data=ary.data,
+                                     shape=_cg.unpack_tuple(builder, ary.shape),
+                                     strides=_cg.unpack_tuple(builder, ary.strides),
+                                     layout=aryty.layout, inds=[idx], wraparound=False)
+
     @_intrinsic
     def load4(typingctx, arr, idx):
         """a[i], a[i+1], a[i+2], a[i+3] in one 16-byte (float32) or two 16-byte (float64)
@@ -143,11 +151,7 @@ else:
 
         def codegen(context, builder, sig, args):
             aryty = sig.args[0]
-            ary = context.make_array(aryty)(context, builder, args[0])
-            ptr = _cg.get_item_pointer2(context, builder, data=ary.data,
-                                        shape=_cg.unpack_tuple(builder, ary.shape),
-                                        strides=_cg.unpack_tuple(builder, ary.strides),
-                                        layout=aryty.layout, inds=[args[1]], wraparound=False)
+            ptr = _item_ptr(context, builder, aryty, args[0], args[1])
             vty = _ir.VectorType(context.get_data_type(aryty.dtype), 4)
             vec = builder.load(builder.bitcast(ptr, vty.as_pointer()), align=16)
             vals = [builder.extract_element(vec, _ir.Constant(_ir.IntType(32), k)) for k in range(4)]
@@ -162,13 +166,7 @@ else:
         sig = arr.dtype(arr, idx)
 
         def codegen(context, builder, sig, args):
-            aryty = sig.args[0]
-            ary = context.make_array(aryty)(context, builder, args[0])
-            ptr = _cg.get_item_pointer2(context, builder, data=ary.data,
-                                        shape=_cg.unpack_tuple(builder, ary.shape),
-                                        strides=_cg.unpack_tuple(builder, ary.strides),
-                                        layout=aryty.layout, inds=[args[1]], wraparound=False)
-            return builder.load(ptr)
+            return builder.load(_item_ptr(context, builder, sig.args[0], args[0], args[1]))
         return sig, codegen
 
     _DEVICE_ONLY["at"] = _at_nowrap
