@@ -1316,6 +1316,18 @@ def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, unroll, xa, ya, za, p_a, vxa, 
 
 
 @njit(inline="always")
+def _warp_max_into(out, v):
+    """out[0] = max(out[0], the warp's largest v): shuffles, then one atomic a warp. Every
+    lane of the warp must call it (k_forces_fv / bv: spare threads repeat the last row). A
+    per-block maximum through shared memory took two block barriers, at which a block's
+    warps waited for its slowest (9 % of the fluid kernel's stall samples). GPU only."""
+    for off in (16, 8, 4, 2, 1):
+        v = max(v, cuda.shfl_down_sync(FULL_MASK, v, off))
+    if cuda.laneid == 0:
+        cuda.atomic.max(out, 0, v)
+
+
+@njit(inline="always")
 def _first_at_least(pos4, comp, lo, hi, t):
     """First j in [lo, hi) whose coordinate `comp` (pos4[4 j + comp]) is >= t, hi if none:
     a cell's rows are sorted by that coordinate (k_sort_cells_by)."""
@@ -1462,17 +1474,12 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term into visc_[0]: the warp's maximum, one atomic a warp (no block
-    # barrier, at which a block's warps waited for its slowest: 9 % of the fluid kernel's
-    # stall samples); written out here: the simulator runs cuda.* only in kernel bodies, and
-    # has no warp shuffles (there, one atomic a row)
+    # the viscous-dt term into visc_[0], one atomic a warp (_warp_max_into); the simulator
+    # has no warp shuffles and runs cuda.* only in kernel bodies: there one atomic a row
     if SIMULATOR:
         cuda.atomic.max(visc_, 0, vmax)
     else:
-        for off in (16, 8, 4, 2, 1):
-            vmax = max(vmax, cuda.shfl_down_sync(FULL_MASK, vmax, off))
-        if cuda.laneid == 0:
-            cuda.atomic.max(visc_, 0, vmax)
+        _warp_max_into(visc_, vmax)
 
 
 def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
@@ -1520,14 +1527,11 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
                         vmax = fv
                 j = int32(j + 1)
     _store_boundary(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term: the warp's maximum, one atomic a warp (k_forces_fv)
+    # the viscous-dt term: the warp's maximum, one atomic a warp (as k_forces_fv)
     if SIMULATOR:
         cuda.atomic.max(visc_, 0, vmax)
     else:
-        for off in (16, 8, 4, 2, 1):
-            vmax = max(vmax, cuda.shfl_down_sync(FULL_MASK, vmax, off))
-        if cuda.laneid == 0:
-            cuda.atomic.max(visc_, 0, vmax)
+        _warp_max_into(visc_, vmax)
 
 
 def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
