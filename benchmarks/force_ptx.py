@@ -2,14 +2,24 @@
 
 Compiles k_forces_f / k_forces_b for SPHERIC 2 to PTX with numba-cuda (NVVM only, no
 device), assembles it for sm_90 with ptxas at the register cap the backend uses, and
-prints ptxas' resource report and the global-load widths of the PTX. Needs numba-cuda,
-NVRTC and a CUDA toolkit's ptxas on the PATH (not part of the default install):
+prints ptxas' resource report and the global-load widths of the PTX; with `cuobjdump` on
+the PATH also the SASS (`--dump DIR`: NAME.sass) and its instruction count. Needs
+numba-cuda, NVRTC and a CUDA toolkit's ptxas on the PATH (not part of the default
+install). On the development VM (2026-12-02): a separate virtual environment with
+`numba==0.68.1 "numpy<2.5" numba-cuda==0.30.4 nvidia-cuda-nvrtc==13.0.*`, this project
+installed into it, `CUDA_HOME=/usr/local/cuda-13.0` with its `bin` (ptxas) on the PATH, and
+the `bin` folders of the wheels `nvidia-cuda-cuobjdump` and `nvidia-cuda-nvdisasm`
+(unpacked) on the PATH for the SASS:
 
     python benchmarks/force_ptx.py [--maxreg 64] [--dump DIR]
+
+Comparing the SASS of two trees this way checked that refactorings kept the kernels'
+instructions (sm_90), and counted the instructions of the candidate loop and pair body.
 """
 import argparse
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -68,6 +78,12 @@ def main(argv=None):
             loads[k] = loads.get(k, 0) + 1
         print(f"{name}: maxreg {mr}: {rep or r.stderr.strip()[:300]}")
         print(f"  global loads in the PTX: {loads}")
+        if shutil.which("cuobjdump") and r.returncode == 0:
+            sass = subprocess.run(["cuobjdump", "-sass", str(out / f"{name}.cubin")], capture_output=True,
+                                  text=True).stdout
+            ins = [ln.strip() for ln in sass.splitlines() if re.match(r"\s+/\*[0-9a-f]{4}\*/", ln)]
+            (out / f"{name}.sass").write_text("\n".join(ins) + "\n")
+            print(f"  SASS: {len(ins)} instructions ({name}.sass)")
     print(f"PTX and cubin in {out}")
 
 
