@@ -48,12 +48,10 @@ def main(argv=None):
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     n = dv.n
-    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK)
+    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL)
 
     sim.compute.build_cells(st)          # freshly sorted: fv trims its rows with no slack
     cuda.synchronize()
-
-    keep += (CK.UNROLL,)
 
     def setv(v):
         f, mr, fb, *flags = v.split(":")

@@ -115,6 +115,9 @@ def kernel(f, dtype, memo=None, fastmath=False):
 
 
 # ------------------------------------------------------------------------------- vector loads
+# load4 and at are plain @njit functions (CPU, simulator, tests of the helpers); the CUDA
+# copies of the kernels get the intrinsics of _DEVICE_ONLY in their place (_clone).
+@njit(inline="always")
 def _load4_py(a, i):
     return a[i], a[i + 1], a[i + 2], a[i + 3]
 
@@ -124,12 +127,11 @@ def _at_py(a, i):
     return a[i]
 
 
-at = _at_py      # CPU and simulator (tests of the helpers); CUDA copies get _at_nowrap (_clone)
+load4 = _load4_py
+at = _at_py
 _DEVICE_ONLY = {}
 
-if SIMULATOR:
-    load4 = _load4_py
-else:
+if not SIMULATOR:
     from llvmlite import ir as _ir
     from numba.core import cgutils as _cg, types as _nt
     from numba.core.extending import intrinsic as _intrinsic  # noqa: E402
@@ -143,7 +145,7 @@ else:
                                      layout=aryty.layout, inds=[idx], wraparound=False)
 
     @_intrinsic
-    def load4(typingctx, arr, idx):
+    def _load4_vec(typingctx, arr, idx):
         """a[i], a[i+1], a[i+2], a[i+3] in one 16-byte (float32) or two 16-byte (float64)
         loads; i a multiple of 4 in an array whose data is 16-byte aligned (device
         allocations are 256-byte aligned; the pos4/vel4 records start at 0)."""
@@ -169,7 +171,7 @@ else:
             return builder.load(_item_ptr(context, builder, sig.args[0], args[0], args[1]))
         return sig, codegen
 
-    _DEVICE_ONLY["at"] = _at_nowrap
+    _DEVICE_ONLY.update(load4=_load4_vec, at=_at_nowrap)
 
 
 # ------------------------------------------------------------------------------- kernels
