@@ -31,6 +31,27 @@ from .kernels import grad_factor
 
 
 @njit(inline="always", cache=True)
+def gravity_dot(drx, dry, drz, prm):
+    """g . r_ab over gravity's nonzero components only: on the GPU the parameters are
+    compile-time constants, so the tests fold away (two multiplies a pair less with g along
+    one axis); the same sum in the same order as the full dot product (zero terms add
+    exactly)."""
+    if prm[P_GX] != 0.0:
+        gr = prm[P_GX] * drx
+        if prm[P_GY] != 0.0:
+            gr += prm[P_GY] * dry
+        if prm[P_GZ] != 0.0:
+            gr += prm[P_GZ] * drz
+    elif prm[P_GY] != 0.0:
+        gr = prm[P_GY] * dry
+        if prm[P_GZ] != 0.0:
+            gr += prm[P_GZ] * drz
+    else:
+        gr = prm[P_GZ] * drz
+    return gr
+
+
+@njit(inline="always", cache=True)
 def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
                b_bound, prm, kernel, ddt_kind, laminar):
     """Contribution of b to fluid particle a.
@@ -69,22 +90,7 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
             ddt = prm[P_DDT_KH] * prm[P_C0] * (rho_a * inv_rho_b - 1.0) * inv_r2e * rfr * mass_b
         else:
             # hydrostatic density difference rho^H_b - rho^H_a from P^H_b - P^H_a = -rho0 g . r_ab
-            # g . r_ab with gravity's zero components left out: on the GPU the parameters are
-            # compile-time constants, so the tests fold away (two multiplies a pair less)
-            # (the same sum in the same order as the full dot product: zero terms add exactly)
-            if prm[P_GX] != 0.0:
-                gr = prm[P_GX] * drx
-                if prm[P_GY] != 0.0:
-                    gr += prm[P_GY] * dry
-                if prm[P_GZ] != 0.0:
-                    gr += prm[P_GZ] * drz
-            elif prm[P_GY] != 0.0:
-                gr = prm[P_GY] * dry
-                if prm[P_GZ] != 0.0:
-                    gr += prm[P_GZ] * drz
-            else:
-                gr = prm[P_GZ] * drz
-            y = -gr * prm[P_RHO0_B]
+            y = -gravity_dot(drx, dry, drz, prm) * prm[P_RHO0_B]
             if abs(y) < 1e-3:  # binomial series, exact to round-off: pow() per pair is slow
                 drho_h = prm[P_RHO0] * y * (prm[P_HYD1] + y * (prm[P_HYD2] + y * (prm[P_HYD3] + y * prm[P_HYD4])))
             else:
