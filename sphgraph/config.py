@@ -33,7 +33,7 @@ P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10
 P_VISC, P_VISC_BOUND, P_NU, P_DDT_KH, P_GX, P_GY, P_GZ, P_MASS_F, P_MASS_B = range(10, 19)
 P_CUBIC_A24 = 19
 P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B = 20, 21, 22, 23, 24  # series of (1+y)^(1/gamma) - 1; rho0/B
-P_INV_H, P_BWH, P_COUNT = 25, 26, 27
+P_INV_H, P_BWH, P_YMAX, P_COUNT = 25, 26, 27, 28  # P_YMAX: the largest |y| of the series (fluid_pair)
 # opt indices
 O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_COUNT = range(5)
 # opt values
@@ -135,6 +135,9 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     prm[P_HYD3] = prm[P_HYD2] * (k - 2.0) / 3.0
     prm[P_HYD4] = prm[P_HYD3] * (k - 3.0) / 4.0
     prm[P_RHO0_B] = cfg.rho0 / B
+    # the largest |y| = |g . r_ab| rho0/B a pair within 2h can have: below the series' range
+    # the Fourtakas term needs no pow() branch (fluid_pair; a compile-time fold on the GPU)
+    prm[P_YMAX] = float(np.linalg.norm(g)) * 2.0 * h * prm[P_RHO0_B]
     prm[P_INV_H] = 1.0 / h
     prm[P_BWH] = bw / h
     opt = np.zeros(O_COUNT, np.int64)

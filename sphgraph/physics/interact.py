@@ -26,28 +26,27 @@ import math
 from numba import njit
 
 from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_VISC, P_VISC_BOUND, D_NONE, D_MOLTENI, D_FOURTAKAS_FULL)
+                      P_RHO0, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI, D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
 
 @njit(inline="always", cache=True)
-def gravity_dot(drx, dry, drz, prm):
-    """g . r_ab over gravity's nonzero components only: on the GPU the parameters are
-    compile-time constants, so the tests fold away (two multiplies a pair less with g along
-    one axis); the same sum in the same order as the full dot product (zero terms add
-    exactly)."""
+def gravity_dot(drx, dry, drz, prm, s):
+    """s g . r_ab over gravity's nonzero components only, the factor s taken into each
+    component (s gx) drx: on the GPU the parameters are compile-time constants, so the
+    tests and the products s gx fold away (one multiply a pair with g along one axis)."""
     if prm[P_GX] != 0.0:
-        gr = prm[P_GX] * drx
+        gr = (s * prm[P_GX]) * drx
         if prm[P_GY] != 0.0:
-            gr += prm[P_GY] * dry
+            gr += (s * prm[P_GY]) * dry
         if prm[P_GZ] != 0.0:
-            gr += prm[P_GZ] * drz
+            gr += (s * prm[P_GZ]) * drz
     elif prm[P_GY] != 0.0:
-        gr = prm[P_GY] * dry
+        gr = (s * prm[P_GY]) * dry
         if prm[P_GZ] != 0.0:
-            gr += prm[P_GZ] * drz
+            gr += (s * prm[P_GZ]) * drz
     else:
-        gr = prm[P_GZ] * drz
+        gr = (s * prm[P_GZ]) * drz
     return gr
 
 
@@ -65,13 +64,17 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
     frz = fac * drz
     inv_rho_b = 1.0 / rho_b          # shared reciprocals: divisions dominate the pair cost
     inv_r2e = 1.0 / (r2 + prm[P_ETA2])
-    ar = mass_b * (dvx * frx + dvy * fry + dvz * frz) * rho_a * inv_rho_b
+    # factors of a alone (m_b rho_a, -m_b / rho_a) first: the kernels hoist them out of the
+    # loop over b, and with fastmath a product is not reassociated for them
+    ar = (mass_b * rho_a) * (dvx * frx + dvy * fry + dvz * frz) * inv_rho_b
     dot = dvx * drx + dvy * dry + dvz * drz
     dot_rr2 = dot * inv_r2e
-    coef = -(p_a + p_b) * inv_rho_a * inv_rho_b * mass_b
+    coef = (p_a + p_b) * (-mass_b * inv_rho_a) * inv_rho_b
     if dot < 0.0:
         alpha = prm[P_VISC_BOUND] if b_bound else prm[P_VISC]
-        coef += alpha * prm[P_C0] * prm[P_H] * dot_rr2 / (0.5 * (rho_a + rho_b)) * mass_b
+        # 1 / rho_bar = 2 / (rho_a + rho_b) as a reciprocal (fastmath: one approximate
+        # reciprocal, where a division keeps a range check), the constants in one factor
+        coef += (2.0 * alpha * prm[P_C0] * prm[P_H] * mass_b) * dot_rr2 * (1.0 / (rho_a + rho_b))
     ax = coef * frx
     ay = coef * fry
     az = coef * frz
@@ -90,12 +93,15 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
             ddt = prm[P_DDT_KH] * prm[P_C0] * (rho_a * inv_rho_b - 1.0) * inv_r2e * rfr * mass_b
         else:
             # hydrostatic density difference rho^H_b - rho^H_a from P^H_b - P^H_a = -rho0 g . r_ab
-            y = -gravity_dot(drx, dry, drz, prm) * prm[P_RHO0_B]
-            if abs(y) < 1e-3:  # binomial series, exact to round-off: pow() per pair is slow
-                drho_h = prm[P_RHO0] * y * (prm[P_HYD1] + y * (prm[P_HYD2] + y * (prm[P_HYD3] + y * prm[P_HYD4])))
+            y = gravity_dot(drx, dry, drz, prm, -prm[P_RHO0_B])
+            # binomial series, exact to round-off for |y| < 1e-3 (float32 kernels: 2e-2,
+            # F32_REMAP): pow() per pair is slow, and where no pair of the scene can reach
+            # past the series' range (P_YMAX, a constant on the GPU) the branch folds away
+            if prm[P_YMAX] < 1e-3 or abs(y) < 1e-3:
+                drho_h = (prm[P_RHO0] * y) * (prm[P_HYD1] + y * (prm[P_HYD2] + y * (prm[P_HYD3] + y * prm[P_HYD4])))
             else:
                 drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
-            ddt = -prm[P_DDT_KH] * prm[P_C0] * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * mass_b * inv_rho_b
+            ddt = (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
     return ax, ay, az, ar, ddt, cancel, prm[P_H] * dot_rr2
 
 
@@ -106,6 +112,8 @@ def bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, mass_b, prm, kern
     Returns (ar, visc).
     """
     fac = grad_factor(r2, prm, kernel)
-    ar = mass_b * fac * (dvx * drx + dvy * dry + dvz * drz) * (rho_a / rho_b)
     dot = dvx * drx + dvy * dry + dvz * drz
-    return ar, prm[P_H] * dot / (r2 + prm[P_ETA2])
+    # reciprocals, not divisions (fastmath: one approximate reciprocal each), m_b rho_a first
+    # (hoisted out of the loop over b), as in fluid_pair
+    ar = (mass_b * rho_a) * (fac * dot) * (1.0 / rho_b)
+    return ar, prm[P_H] * dot * (1.0 / (r2 + prm[P_ETA2]))

@@ -40,10 +40,12 @@ def grad_factor(r2, prm, kernel):
 
     Written with q/r = 1/h (prm[P_BWH] = bw/h) so the hot path has no division.
     """
-    q = math.sqrt(r2) * prm[P_INV_H]
     if kernel == K_WENDLAND:
-        w = 1.0 - 0.5 * q
+        # 1 - q/2 as one multiply-add: (0.5 / h) is a constant on the GPU, and scaling by
+        # 0.5 is exact, so the same value as 1 - 0.5 * (r / h)
+        w = 1.0 - math.sqrt(r2) * (0.5 * prm[P_INV_H])
         return prm[P_BWH] * w * w * w
+    q = math.sqrt(r2) * prm[P_INV_H]
     if q < 1.0:
         return prm[P_BWH] * (-3.0 + 2.25 * q)
     w = 2.0 - q
