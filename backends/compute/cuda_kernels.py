@@ -49,6 +49,10 @@ FULL_MASK = np.uint32(0xFFFFFFFF)    # all 32 lanes of a warp (shuffles)
 UNROLL = int(os.environ.get("SPHGRAPH_CUDA_UNROLL", "2"))   # k_forces_fv: candidates a turn (_fv_part)
 if UNROLL not in (1, 2):
     raise ValueError(f"SPHGRAPH_CUDA_UNROLL={UNROLL}: expected 1 or 2")
+# k_forces_fv: skip candidates closer than 1e-9 (r^2 < 1e-18, DualSPHysics' ALMOSTZERO: the
+# row itself) in the candidate test. Off, the row itself passes the test and adds exact
+# zeros (every term of fluid_pair carries r_ab or v_ab . r_ab), one compare a candidate less.
+SELF_CUT = os.environ.get("SPHGRAPH_CUDA_SELF_CUT", "1") != "0"
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -1264,7 +1268,7 @@ def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, 
     dry = ya - yb
     drz = za - zb
     r2 = drx * drx + dry * dry + drz * drz
-    if not (r2 > support2 or r2 < 1e-18):
+    if not (r2 > support2 or (SELF_CUT and r2 < 1e-18)):
         vxb, vyb, vzb, rho_b = load4(vel4, j4)
         fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
                                                 inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
@@ -1740,7 +1744,7 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | Non
     fm = (dt == np.float32) if fastmath is None else bool(fastmath)
     mr = (MAXREG if dt == np.float32 else 0) if max_registers is None else int(max_registers)
     pc = np.ascontiguousarray(prm, dt)
-    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES, UNROLL)
+    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), fm, mr, FORCES, UNROLL, SELF_CUT)
     if key not in _FORCES:
         memo = {}
         extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar), "UNR": UNROLL}
