@@ -6,7 +6,8 @@ variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, an
 compares every variant's accelerations and density rates with the first one's.
 A variant is KERNEL:MAXREG:BLOCK[:FLAG ...] (KERNEL f or fv: cuda_kernels.FORCES; flags:
 notrim, fv with whole cells, as right after a step that moved rows since the sort; u1 / u2,
-fv's candidates one or two a turn, cuda_kernels.UNROLL). The cells are
+fv's candidates one or two a turn, cuda_kernels.UNROLL; noself, fv's candidate test without
+the r^2 < 1e-18 cut, cuda_kernels.SELF_CUT). The cells are
 sorted again before the timings, so fv trims its rows with no slack.
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
@@ -48,7 +49,7 @@ def main(argv=None):
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     n = dv.n
-    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL)
+    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL, CK.SELF_CUT)
 
     sim.compute.build_cells(st)          # freshly sorted: fv trims its rows with no slack
     cuda.synchronize()
@@ -58,6 +59,7 @@ def main(argv=None):
         CK.FORCES = f
         CK.MAXREG, CK.FORCE_BLOCK = int(mr), int(fb)
         CK.UNROLL = 2 if "u2" in flags else (1 if "u1" in flags else keep[3])
+        CK.SELF_CUT = False if "noself" in flags else keep[4]
         dv.moved = np.inf if "notrim" in flags else 0.0
 
     def outputs():
@@ -88,7 +90,7 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL = keep
+    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL, CK.SELF_CUT = keep
     dv.moved = 0.0
     pairs = sim.compute.count_pairs(st)
     base = None
