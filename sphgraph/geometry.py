@@ -9,7 +9,11 @@ computed on integer indices, never on floats, which makes the rules exact:
 * overlapping boundary shapes are merged by taking the union of indices;
 * points are handled as int64 *keys* (row-major linear index inside a
   :class:`Grid` window), so a union is ``np.unique`` and membership is a
-  ``searchsorted`` -- both vectorised, no Python loop over points.
+  ``searchsorted`` -- both vectorised, no Python loop over points;
+* a scene of boxes only skips the keys: :class:`RowFill` cuts each lattice row
+  (all indices but the last) into intervals and writes the same points in the
+  same order, in parallel, with memory per row instead of per point (SPHERIC 2
+  at hundreds of millions of particles).
 
 Shapes are described as lists of inclusive index boxes ``(lo, hi)`` (int64
 arrays of length dim). A box's point count is known without generating it,
@@ -240,3 +244,115 @@ def in_box(idx: np.ndarray, box: Box) -> np.ndarray:
     """Boolean mask: which index vectors ``idx`` ([n, dim]) lie in ``box`` (inclusive)."""
     lo, hi = box
     return np.all((idx >= lo) & (idx <= hi), axis=1)
+
+
+# --- the row fill: box-only scenes without keys ---------------------------------------
+
+BOUNDARY, HOLLOW, FLUID, SOLID = 0, 1, 2, 3   # roles of a RowFill's boxes (lattice_kernels)
+
+
+class RowFill:
+    """The particles of a scene drawn with index boxes only, made row by row in parallel
+    (numba kernels in :mod:`sphgraph.lattice_kernels`) instead of through keys.
+
+    Boundary points are the union of the BOUNDARY boxes less the HOLLOW boxes; fluid
+    points the union of the FLUID boxes less the boundary points and the SOLID boxes. The
+    points and their order are those of the key path (``union_keys``, ``contains``,
+    ``in_box``): boundary first, then fluid, each in key (row-major) order over the window
+    of the BOUNDARY and FLUID boxes. Memory is a few int64 per row of that window, not per
+    point; :meth:`fill` writes the particle arrays and nothing else of their size.
+
+    Parameters
+    ----------
+    boxes : list of (role, Box)
+        role one of BOUNDARY, HOLLOW, FLUID, SOLID.
+
+    Raises
+    ------
+    OverflowError
+        The window's keys would not fit int64 (as :class:`Grid`).
+    """
+
+    def __init__(self, boxes):
+        boxes = [(int(r), (np.asarray(b[0], np.int64), np.asarray(b[1], np.int64))) for r, b in boxes]
+        self.dim = len(boxes[0][1][0])
+        self.lo = np.array([b[0] for _, b in boxes], np.int64).reshape(-1, self.dim)
+        self.hi = np.array([b[1] for _, b in boxes], np.int64).reshape(-1, self.dim)
+        self.role = np.array([r for r, _ in boxes], np.int8)
+        win = bounding_box([b for r, b in boxes if r in (BOUNDARY, FLUID)])
+        if win is None:
+            win = (np.zeros(self.dim, np.int64), np.full(self.dim, -1, np.int64))
+            self.wlo, self.rshape = win[0], np.zeros(self.dim - 1, np.int64)
+        else:
+            grid = Grid(*win)
+            self.wlo, self.rshape = grid.lo, np.array(grid.shape[:-1], np.int64)
+        self.nrows = 1
+        for s in self.rshape.tolist():
+            self.nrows *= int(s)
+        self.counted = False
+
+    def count(self) -> None:
+        """Points per row (both kinds) and the fluid's lowest / highest last index."""
+        if self.counted:
+            return
+        from . import lattice_kernels as LK
+        n = self.nrows
+        self.nb_row = np.zeros(n, np.int64)
+        self.nf_row = np.zeros(n, np.int64)
+        fmin = np.empty(n, np.int64)
+        fmax = np.empty(n, np.int64)
+        with _all_threads() as threads:
+            if n:
+                LK.row_counts(self.lo, self.hi, self.role, self.wlo, self.rshape, self.nb_row,
+                              self.nf_row, fmin, fmax, max(min(n, 64 * threads), 1))
+        self.n_boundary = int(self.nb_row.sum())
+        self.n_fluid = int(self.nf_row.sum())
+        has = self.nf_row > 0
+        self.fluid_last = (int(fmin[has].min()), int(fmax[has].max())) if self.n_fluid else None
+        self.counted = True
+
+    def fill(self, origin, dp: float, dtype, rho0: float, kinds):
+        """(pos float64 [n, dim], ids int64, kind int8, rho, rho_m1 in `dtype`) of every
+        point: boundary rows first (kind kinds[0]), then fluid (kinds[1]), density rho0."""
+        from . import lattice_kernels as LK
+        self.count()
+        nb, n = self.n_boundary, self.n_boundary + self.n_fluid
+        first = np.empty((2, self.nrows), np.int64)
+        if self.nrows:
+            first[0, 0] = 0
+            np.cumsum(self.nb_row[:-1], out=first[0, 1:])
+            first[1, 0] = nb
+            np.cumsum(self.nf_row[:-1], out=first[1, 1:])
+            first[1, 1:] += nb
+        pos = np.empty((n, self.dim), np.float64)
+        ids = np.empty(n, np.int64)
+        kind = np.empty(n, np.int8)
+        rho = np.empty(n, dtype)
+        rho_m1 = np.empty(n, dtype)
+        with _all_threads() as threads:
+            if self.nrows:
+                # chunks of about equal point counts: fluid fills only part of the window's rows
+                work = np.cumsum(self.nb_row + self.nf_row + 1)
+                nch = max(min(self.nrows, 16 * threads), 1)
+                bounds = np.searchsorted(work, np.linspace(0, work[-1], nch + 1)[1:-1], side="right")
+                bounds = np.concatenate([[0], bounds, [self.nrows]]).astype(np.int64)
+                LK.fill_rows(self.lo, self.hi, self.role, self.wlo, self.rshape, first, bounds,
+                             np.asarray(origin, np.float64), float(dp), np.asarray(kinds, np.int8),
+                             float(rho0), pos, ids, kind, rho, rho_m1)
+        return pos, ids, kind, rho, rho_m1
+
+
+class _all_threads:
+    """Every numba thread for the block (the CPU backend lowers the count for small
+    ranks); the previous count after it. Yields the count."""
+
+    def __enter__(self):
+        import numba
+        self.keep = numba.get_num_threads()
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        return numba.config.NUMBA_NUM_THREADS
+
+    def __exit__(self, *exc):
+        import numba
+        numba.set_num_threads(self.keep)
+        return False

@@ -38,6 +38,7 @@ except ModuleNotFoundError:  # Python < 3.11
 
 FORMAT_VERSION = 1
 DEFAULT_MAX_PARTICLES = 200_000_000
+_CHUNK = 1 << 20   # rows a float64 temporary of build_particles holds at a time
 # Tables that later features read (load balancing, probes, force output, moving
 # bodies). Accepted and kept raw in Scene.extra, unvalidated, until those
 # features validate them; extend this tuple to reserve another table name.
@@ -483,6 +484,65 @@ class Scene:
                                                   str(err), literal=True) from None
         return self._cache[k]
 
+    def _solids(self, lat) -> list:
+        """Index boxes of the box obstacles: solid bodies, no fluid inside them even when
+        drawn as a surface."""
+        return [(lat.nearest(e["min"]), lat.nearest(e["max"])) for e in self.boundary if e["type"] == "box"]
+
+    def _hollows(self, lat) -> list:
+        """Index boxes emptied of boundary points: the hollow of a surface obstacle
+        (DualSPHysics voids the box before drawing its faces); with open_bottom this also
+        clears the floor under it."""
+        return [geo.hollow_box(lat.nearest(e["min"]), lat.nearest(e["max"]), e["layers"], e["open_bottom"])
+                for e in self.boundary if e["type"] == "box" and e["fill"] == "surface"]
+
+    def _row_fill(self):
+        """The :class:`~sphgraph.geometry.RowFill` of a scene drawn with boxes only (fluid
+        boxes, tanks, box obstacles, walls), not yet counted, cached: the same particle set
+        as :meth:`_lattice` without a key or an index vector per point. None for a scene
+        with shapes (cylinder, slope, stl), or whose window has far more rows than points
+        (those take the key path)."""
+        if "rows" in self._cache:
+            return self._cache["rows"]
+        rows = None
+        if not any(e["type"] in shapes.SHAPE_TYPES for e in self.fluid + self.boundary):
+            lat = self._lattice_def()
+            boxes = [(geo.BOUNDARY, b) for e in self.boundary for b in _boundary_boxes(e, lat, self.dim)]
+            boxes += [(geo.HOLLOW, b) for b in self._hollows(lat)]
+            boxes += [(geo.FLUID, lat.inner_range(e["min"], e["max"])) for e in self.fluid]
+            boxes += [(geo.SOLID, b) for b in self._solids(lat)]
+            try:
+                rf = geo.RowFill(boxes)
+            except OverflowError:
+                raise _Checker(self.source).error(
+                    "dp", "a spacing whose lattice over the geometry fits int64 keys", self.dp) from None
+            if rf.nrows <= 4 * self.estimated_particles() + 2 ** 20:
+                rows = rf
+        self._cache["rows"] = rows
+        return rows
+
+    def uses_row_fill(self) -> bool:
+        """Whether :meth:`build_particles` writes the rows without keys (boxes only); cheap."""
+        return self._row_fill() is not None
+
+    def _rows(self):
+        """The counted row fill (None: the key path)."""
+        rows = self._row_fill()
+        if rows is not None:
+            rows.count()
+            if rows.n_fluid == 0:
+                raise _Checker(self.source).error(
+                    "fluid", "at least one fluid particle outside the boundaries", 0)
+        return rows
+
+    def _fluid_last(self) -> tuple:
+        """Lowest and highest lattice index of the fluid along the vertical (last) axis."""
+        rows = self._rows()
+        if rows is not None:
+            return rows.fluid_last
+        kz = self._lattice()[1][:, self.vertical]
+        return int(kz.min()), int(kz.max())
+
     def _lattice(self):
         """(boundary index vectors, fluid index vectors), cached: the particle set."""
         if "lattice" in self._cache:
@@ -494,9 +554,7 @@ class Scene:
         fboxes = [lat.inner_range(e["min"], e["max"]) for e in self.fluid if e["type"] == "box"]
         bslabs = [b for e in self.boundary if e["type"] not in shapes.SHAPE_TYPES
                   for b in _boundary_boxes(e, lat, self.dim)]
-        # obstacles are solid bodies: no fluid inside them even when drawn as a surface
-        solids = [(lat.nearest(e["min"]), lat.nearest(e["max"]))
-                  for e in self.boundary if e["type"] == "box"]
+        solids = self._solids(lat)
         sbounds = [self._shape("fluid", i).bounds(lat) for i in fshapes]
         sbounds += [self._shape("boundary", i).bounds(lat) for i in bshapes]
         try:
@@ -508,11 +566,7 @@ class Scene:
         if bshapes:
             bkeys = np.unique(np.concatenate(
                 [bkeys] + [grid.point_keys(self._shape_points("boundary", i)) for i in bshapes]))
-        # the hollow of a surface obstacle is empty (DualSPHysics voids the box before
-        # drawing its faces); with open_bottom this also clears the floor under it
-        hollows = [geo.hollow_box(lat.nearest(e["min"]), lat.nearest(e["max"]), e["layers"],
-                                  e["open_bottom"])
-                   for e in self.boundary if e["type"] == "box" and e["fill"] == "surface"]
+        hollows = self._hollows(lat)
         if hollows:
             bidx = grid.indices(bkeys)
             keep = np.ones(len(bidx), bool)
@@ -568,6 +622,9 @@ class Scene:
 
     def count_particles(self) -> tuple:
         """(n_fluid, n_boundary) of :meth:`build_particles` (computed on indices only)."""
+        rows = self._rows()
+        if rows is not None:
+            return rows.n_fluid, rows.n_boundary
         bidx, fidx = self._lattice()
         return int(len(fidx)), int(len(bidx))
 
@@ -589,8 +646,8 @@ class Scene:
         """
         if self.physics.hswl is not None:
             return float(self.physics.hswl)
-        kz = self._lattice()[1][:, self.vertical]
-        return float(kz.max() - kz.min() + 1) * self.dp
+        lo, hi = self._fluid_last()
+        return float(hi - lo + 1) * self.dp
 
     @property
     def constants(self):
@@ -599,8 +656,7 @@ class Scene:
 
     def surface_level(self) -> float:
         """Free-surface height for the hydrostatic start: lowest fluid row - dp/2 + hswl."""
-        kz = self._lattice()[1][:, self.vertical]
-        z_bottom = self.lattice_origin[self.vertical] + kz.min() * self.dp
+        z_bottom = self.lattice_origin[self.vertical] + self._fluid_last()[0] * self.dp
         return float(z_bottom - 0.5 * self.dp + self.hswl)
 
     def build_particles(self, dtype=np.float64) -> Particles:
@@ -620,26 +676,38 @@ class Scene:
         dtype : numpy dtype
             Precision of velocity and density (positions are always float64).
         """
-        bidx, fidx = self._lattice()
-        lat = self._lattice_def()
-        pos = np.concatenate([lat.positions(bidx), lat.positions(fidx)])
-        nb, nf = len(bidx), len(fidx)
+        dtype = np.dtype(dtype)
+        rho0 = self.physics.rho0
+        rows = self._rows()
+        if rows is not None:    # boxes only: written row by row in parallel, nothing else of size N
+            pos, ids, kind, rho, rho_m1 = rows.fill(self.lattice_origin, self.dp, dtype, rho0, (FIXED, FLUID))
+            nb, nf = rows.n_boundary, rows.n_fluid
+        else:
+            bidx, fidx = self._lattice()
+            lat = self._lattice_def()
+            pos = np.concatenate([lat.positions(bidx), lat.positions(fidx)])
+            nb, nf = len(bidx), len(fidx)
+            ids = np.arange(nb + nf, dtype=np.int64)
+            kind = np.concatenate([np.full(nb, FIXED, np.int8), np.full(nf, FLUID, np.int8)])
+            rho = np.full(nb + nf, rho0, dtype)
+            rho_m1 = rho.copy()
         n = nb + nf
-        kind = np.concatenate([np.full(nb, FIXED, np.int8), np.full(nf, FLUID, np.int8)])
         for m in self.extra.get("motion") or ():  # bodies moved by [[motion]] are kind 2
             kind[:nb][self.boundary_masks()[m["body"]]] = MOVING
-        rho0 = self.physics.rho0
-        rho = np.full(n, rho0, dtype=np.float64)
-        if self.hydrostatic:
+        if self.hydrostatic:    # in float64, a chunk at a time, rounded to dtype once
             k = self.constants
             g = abs(float(k.gravity[self.vertical]))
-            depth = np.maximum(self.surface_level() - pos[:, self.vertical], 0.0)
-            rho[:] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+            zs = self.surface_level()
+            for a in range(0, n, _CHUNK):
+                depth = np.maximum(zs - pos[a:a + _CHUNK, self.vertical], 0.0)
+                rho[a:a + _CHUNK] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+            rho_m1[:] = rho
         if self.jitter > 0:  # breaks lattice ties (e.g. for slab cuts); same seed, same scene
             rng = np.random.default_rng(12345)
             pos[nb:] += rng.uniform(-self.jitter, self.jitter, (nf, self.dim)) * self.dp
-        return Particles.create(np.arange(n, dtype=np.int64), kind, pos,
-                                np.zeros((n, self.dim)), rho, dtype=dtype)
+        # velocities at rest: zeroed pages that a device backend uploads without writing
+        return Particles(id=ids, kind=kind, pos=pos, vel=np.zeros((n, self.dim), dtype), rho=rho,
+                         vel_m1=np.zeros((n, self.dim), dtype), rho_m1=rho_m1)
 
 
 # --- validation helpers ------------------------------------------------------------------
