@@ -148,15 +148,20 @@ def _missing_id(ids, n0, s10, lo, hi):
 
 
 # --------------------------------------------------------------------------- memory guard
-def bytes_per_particle(dim: int, itemsize: int) -> int:
+def bytes_per_particle(dim: int, itemsize: int, device_rows: bool = False, row_fill: bool = False) -> int:
     """Host bytes one particle needs while running (generous): the `Particles` rows
-    (positions float64), pressure, reduced forces, three partial force buffers, the cell
-    sort's copies, and the lattice indices while the scene is built."""
+    (positions float64) and the lattice indices and positions while the scene is built
+    (none with the row fill of a box-only scene, `Scene.uses_row_fill`); on a host backend
+    also pressure, reduced forces, three partial force buffers and the cell sort's copies;
+    with the rows on a device (`device_rows`: numba-cuda) instead what the upload stages
+    (velocity-density records, one float64 column, 32-bit ids)."""
     s = itemsize
     particles = 8 + 1 + 8 * dim + s * (2 * dim + 2)
+    build = 0 if row_fill else 2 * 8 * dim + 8 * dim
+    if device_rows:
+        return particles + build + 4 * s + 8 + 4
     state = s * (1 + dim + 2) + 3 * (s * (dim + 3) + 1)
     sort_copy = 8 + 1 + 8 * dim + s * (2 * dim + 2)
-    build = 2 * 8 * dim + 8 * dim
     return particles + state + sort_copy + build
 
 
@@ -175,14 +180,15 @@ def available_memory() -> int | None:
         return None
 
 
-def check_memory(scene, dtype, available: int | None = None) -> None:
+def check_memory(scene, dtype, available: int | None = None, device_rows: bool = False) -> None:
     """Refuse a scene whose particles would not fit in memory, before allocating them.
 
     Uses the scene's cheap count estimate (index boxes, no allocation) and
-    `bytes_per_particle`; raises `InputError` (exit 2) naming dp and the limit.
+    `bytes_per_particle` (`device_rows`: the compute backend keeps the rows on a device);
+    raises `InputError` (exit 2) naming dp and the limit.
     """
     n = scene.estimated_particles()
-    need = n * bytes_per_particle(scene.dim, np.dtype(dtype).itemsize)
+    need = n * bytes_per_particle(scene.dim, np.dtype(dtype).itemsize, device_rows, scene.uses_row_fill())
     avail = available_memory() if available is None else available
     if avail is not None and need > avail:
         raise InputError(f"{scene.source}: dp: expected a spacing whose particles fit in memory "

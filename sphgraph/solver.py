@@ -107,12 +107,18 @@ class Simulation:
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
                                motion=self.features.motion_task)
         self.compute = compute_cls()
+        # set-up seconds by phase: scene (the particle count, constants), particles (the
+        # rows on the host), state (rank states and the backend's prepare: the upload on a
+        # device), rest (scheduler, features, the invariants' start values)
+        self.setup_seconds = {}
+        t0 = time.perf_counter()
         if particles is None:   # before anything of the scene's size is allocated (scene.constants is)
             from .invariants import check_memory
-            check_memory(scene, self.dtype)
+            check_memory(scene, self.dtype, device_rows=hasattr(compute_cls, "sync_host"))
         consts = scene.constants
         self.consts = consts
         blocks = None
+        t0 = self._phase("scene", t0)
         if particles is None:
             particles = scene.build_particles(self.dtype)
         elif isinstance(particles, (list, tuple)):
@@ -124,6 +130,7 @@ class Simulation:
                 particles = particles.take(np.argsort(particles.id, kind="stable"))
         self.n_total = particles.n
         self.n_fluid = particles.n_fluid
+        t0 = self._phase("particles", t0)
         self.dim = particles.dim
         self.ids = None
         if self.nranks > 1:
@@ -156,6 +163,7 @@ class Simulation:
                                              balancer=bal, halo_transport=self.halo_transport))
         if self.rebalance and self.balance_cfg.policy == "memory":
             self._attach_capacity(scene)
+        t0 = self._phase("state", t0)
         self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
                                    rebalance=self.rebalance, motion=self.features.motion_task,
                                    ring=self.features.ring(self.axis, self.nranks))
@@ -167,6 +175,13 @@ class Simulation:
             self.features.attach(self, particles)
         from .invariants import Invariants
         self.invariants = Invariants(self) if invariants else None
+        self._phase("rest", t0)
+
+    def _phase(self, name, t0) -> float:
+        """Adds the seconds since t0 to set-up phase `name`; returns now."""
+        t = time.perf_counter()
+        self.setup_seconds[name] = self.setup_seconds.get(name, 0.0) + t - t0
+        return t
 
     def _attach_capacity(self, scene) -> None:
         """memory policy: each rank's capacity from its compute backend (the option on CPU,

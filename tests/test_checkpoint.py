@@ -243,6 +243,28 @@ def test_memory_guard_refuses_before_allocating(tmp_path, capsys):
     assert time.perf_counter() - t0 < 5 and not os.path.exists(tmp_path / "o")
 
 
+def test_memory_guard_of_device_rows_and_row_fills():
+    """With the rows on a device (numba-cuda) the host holds the particle arrays and what
+    the upload stages, not the CPU backend's force buffers and sort copies; a box-only
+    scene's row fill keeps no index vectors. SPHERIC 2 at float32 stays within ~110 B per
+    particle of host memory then (issue 6 §6: the largest scene on one GPU)."""
+    from sphgraph.invariants import bytes_per_particle
+    sc = Scene.from_toml(example("spheric2.toml"))
+    assert sc.uses_row_fill()
+    dev = bytes_per_particle(3, 4, device_rows=True, row_fill=True)
+    assert dev <= 110 < bytes_per_particle(3, 4, device_rows=True) < bytes_per_particle(3, 4)
+    n = sc.estimated_particles()
+    check_memory(sc, np.float32, available=n * dev, device_rows=True)
+    with pytest.raises(InputError, match="fit in memory"):
+        check_memory(sc, np.float32, available=n * dev)
+
+
+def test_setup_seconds_by_phase():
+    sim = Simulation(small(), invariants=True)
+    assert list(sim.setup_seconds) == ["scene", "particles", "state", "rest"]
+    assert all(v >= 0 for v in sim.setup_seconds.values())
+
+
 def test_overwrite_drops_an_earlier_runs_checkpoints(tmp_path):
     """Found by test_crash: --overwrite kept old checkpoints, and a restart then mixed a stale
     state with the new output.h5."""
