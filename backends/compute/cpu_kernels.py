@@ -13,7 +13,7 @@ from sphgraph.physics import drop_stale_cache
 
 drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
-from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
+from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
 from sphgraph.physics.interact import bound_pair, fluid_pair  # noqa: E402
 
@@ -123,7 +123,7 @@ def forces(dpos, dvel, drho, dpress, dkind,
         ar[i] = arr
         ddt[i] = dd
         cancel[i] = cc
-        visc[i] = vmax
+        visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
 @njit(parallel=True, cache=True)

@@ -28,7 +28,7 @@ import numpy as np
 from numba import cuda, int32, njit
 from numba.core.dispatcher import Dispatcher
 
-from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
+from sphgraph.config import (O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2)  # noqa: F401
 from sphgraph.physics.eos import tait
 from sphgraph.physics.interact import bound_pair, fluid_pair
 
@@ -470,7 +470,9 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
         ddt_[i] = dd
         cancel_[i] = cc
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
+    # device function: the simulator runs cuda.* only in kernel bodies); the pair terms
+    # come without the factor h (fluid_pair)
+    vmax = prm[P_H] * vmax
     sh = cuda.shared.array(1, RT)
     if cuda.threadIdx.x == 0:
         sh[0] = vmax
@@ -1212,7 +1214,9 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                         vmax = fv
     _store_fluid(i, final, dim == 3, gx, gy, gz, axx, ayy, azz, arr, dd, cc, ax_, ay_, az_, ar_, ddt_, cancel_)
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
+    # device function: the simulator runs cuda.* only in kernel bodies); the pair terms
+    # come without the factor h (fluid_pair)
+    vmax = prm[P_H] * vmax
     sh = cuda.shared.array(1, RT)
     if cuda.threadIdx.x == 0:
         sh[0] = vmax
@@ -1481,7 +1485,9 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
     # the viscous-dt term into visc_[0], one atomic a warp (_warp_max_into); the simulator
-    # has no warp shuffles and runs cuda.* only in kernel bodies: there one atomic a row
+    # has no warp shuffles and runs cuda.* only in kernel bodies: there one atomic a row.
+    # The pair terms come without the factor h (fluid_pair)
+    vmax = prm[P_H] * vmax
     if SIMULATOR:
         cuda.atomic.max(visc_, 0, vmax)
     else:
@@ -1533,7 +1539,8 @@ def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
                         vmax = fv
                 j = int32(j + 1)
     _store_boundary(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
-    # the viscous-dt term: the warp's maximum, one atomic a warp (as k_forces_fv)
+    # the viscous-dt term: the warp's maximum, one atomic a warp (as k_forces_fv), times h
+    vmax = prm[P_H] * vmax
     if SIMULATOR:
         cuda.atomic.max(visc_, 0, vmax)
     else:
@@ -1634,7 +1641,9 @@ def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                         vmax = fv
     _store_boundary(i, final, dim == 3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_)
     # the viscous-dt term: one maximum per block into visc_[0] (written out here, not in a
-    # device function: the simulator runs cuda.* only in kernel bodies)
+    # device function: the simulator runs cuda.* only in kernel bodies); the pair terms
+    # come without the factor h (fluid_pair)
+    vmax = prm[P_H] * vmax
     sh = cuda.shared.array(1, RT)
     if cuda.threadIdx.x == 0:
         sh[0] = vmax

@@ -17,7 +17,9 @@ density diffusion (returned apart, `ddt`, see below):
      P^H_b - P^H_a = rho0 g . (r_b - r_a), so a fluid at rest diffuses nothing.
   With DBC a boundary neighbour cancels the diffusion of particle a ("Molteni",
   "fourtakas"); "fourtakas-full" instead just skips boundary neighbours.
-viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt).
+viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt); the pair
+             functions return it without the factor h, which the callers apply to the
+             maximum (h > 0, so max(h x) = h max(x) to the bit; one multiply a pair less).
 
 The functions are plain @njit so the numba CPU driver and numba.cuda kernels share them.
 """
@@ -56,7 +58,7 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
     """Contribution of b to fluid particle a.
 
     Returns (ax, ay, az, ar, ddt, cancel, visc) where `cancel` is 1 when b
-    switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term.
+    switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term / h.
     """
     fac = grad_factor(r2, prm, kernel)
     frx = fac * drx
@@ -102,18 +104,18 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
             else:
                 drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
             ddt = (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
-    return ax, ay, az, ar, ddt, cancel, prm[P_H] * dot_rr2
+    return ax, ay, az, ar, ddt, cancel, dot_rr2
 
 
 @njit(inline="always", cache=True)
 def bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, mass_b, prm, kernel):
     """Contribution of fluid particle b to boundary particle a (DBC): continuity only.
 
-    Returns (ar, visc).
+    Returns (ar, visc), visc the ViscDt term / h.
     """
     fac = grad_factor(r2, prm, kernel)
     dot = dvx * drx + dvy * dry + dvz * drz
     # reciprocals, not divisions (fastmath: one approximate reciprocal each), m_b rho_a first
     # (hoisted out of the loop over b), as in fluid_pair
     ar = (mass_b * rho_a) * (fac * dot) * (1.0 / rho_b)
-    return ar, prm[P_H] * dot * (1.0 / (r2 + prm[P_ETA2]))
+    return ar, dot * (1.0 / (r2 + prm[P_ETA2]))

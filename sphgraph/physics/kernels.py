@@ -41,8 +41,14 @@ def grad_factor(r2, prm, kernel):
     Written with q/r = 1/h (prm[P_BWH] = bw/h) so the hot path has no division.
     """
     if kernel == K_WENDLAND:
-        # 1 - q/2 as one multiply-add: (0.5 / h) is a constant on the GPU, and scaling by
-        # 0.5 is exact, so the same value as 1 - 0.5 * (r / h)
+        # bw/h (1 - q/2)^3 = k8 (2h - r)^3, k8 = bw/h / (2h)^3: one subtraction of a
+        # constant (2h and k8 fold to constants on the GPU), where 1 - r (0.5/h) takes a
+        # multiply-add and a register for its second constant. k8 ~ h^-8 overflows float32
+        # for h below ~3e-5: there (a test of constants, folded) the other form
+        k8 = prm[P_BWH] * (0.125 * prm[P_INV_H] * prm[P_INV_H] * prm[P_INV_H])
+        if abs(k8) < 1e30:
+            w = 2.0 * prm[P_H] - math.sqrt(r2)
+            return k8 * w * w * w
         w = 1.0 - math.sqrt(r2) * (0.5 * prm[P_INV_H])
         return prm[P_BWH] * w * w * w
     q = math.sqrt(r2) * prm[P_INV_H]
