@@ -6,7 +6,7 @@
 # install line of shared/device/README.md:
 #     bash benchmarks/gpu_session.sh STAGE [STAGE ...]
 # Stages: tests spheric2 toe yeh large multi lanes multi-nolanes forceab ncu spheric2-4m
-#         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m ipc ipc-tests ipc-overlap mem forceab-rt
+#         forceab-trim forceab-cap hostprof slow-launch tests-quick final check-4m ipc ipc-tests ipc-overlap mem forceab-rt largest
 set -u
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
@@ -120,6 +120,12 @@ for s in "$@"; do
               export SPHGRAPH_CUDA_UNROLL=$(python3 -c "import json; v = json.load(open('$OUT/force_ab_u2.json'))['variants']; \
 print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 2)" 2>/dev/null || echo 2)
               echo "SPHGRAPH_CUDA_UNROLL=$SPHGRAPH_CUDA_UNROLL" | tee "$OUT/unroll.txt" ;;
+    # the largest SPHERIC 2 that fits an H100 80 GB (issue 6 §6): dp 0.00095, 835,827,729 particles
+    # (785,608,352 fluid), planned by `gpu_bench.py --plan` at 97.1 B per particle, 96 % of the
+    # H100's 81,559 MiB with 1 GiB for the context; 2 warm-up and 10 timed steps, set-up phases and
+    # host / device peaks in the JSON (--lean: no pair count, profile pass or bare loop)
+    largest)  stage largest 540 python3 benchmarks/gpu_bench.py --dp 0.00095 --steps 10 --warmup 2 --lean \
+                --json "$OUT/largest.json" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

@@ -286,6 +286,7 @@ class RowFill:
         else:
             grid = Grid(*win)
             self.wlo, self.rshape = grid.lo, np.array(grid.shape[:-1], np.int64)
+        self.window = win     # inclusive index box: every point lies in it
         self.nrows = 1
         for s in self.rshape.tolist():
             self.nrows *= int(s)
