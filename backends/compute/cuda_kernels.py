@@ -50,9 +50,12 @@ UNROLL = int(os.environ.get("SPHGRAPH_CUDA_UNROLL", "2"))   # k_forces_fv: candi
 if UNROLL not in (1, 2):
     raise ValueError(f"SPHGRAPH_CUDA_UNROLL={UNROLL}: expected 1 or 2")
 # k_forces_fv: skip candidates closer than 1e-9 (r^2 < 1e-18, DualSPHysics' ALMOSTZERO: the
-# row itself) in the candidate test. Off, the row itself passes the test and adds exact
-# zeros (every term of fluid_pair carries r_ab or v_ab . r_ab), one compare a candidate less.
-SELF_CUT = os.environ.get("SPHGRAPH_CUDA_SELF_CUT", "1") != "0"
+# row itself) in the candidate test. Off (the default), the row itself passes the test and
+# adds exact zeros (every term of fluid_pair carries r_ab or v_ab . r_ab), one compare and
+# one predicate operation a candidate less: 1.0-1.4 % per forces at 4.4 M on the H200
+# (2026-12-02). Rows closer than 1e-9 but apart would count; the float32 relative positions
+# resolve ~1e-7 of the domain, so only coincident rows (exact zeros) come that close.
+SELF_CUT = os.environ.get("SPHGRAPH_CUDA_SELF_CUT", "0") != "0"
 FORCES = os.environ.get("SPHGRAPH_CUDA_FORCES", "fv")
 if FORCES not in ("f", "fv"):
     raise ValueError(f"SPHGRAPH_CUDA_FORCES={FORCES!r}: expected f or fv")
@@ -1739,7 +1742,11 @@ def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
 # H200, 2026-12-02 (k_forces_fv with 32-bit loop indices): cap 56 is 3 % faster than 64 per
 # forces at 4.4 M (7.23 / 7.45 ms), 72 is 10 % slower; its 48-56 B stack frame stays within the
 # driver's default per-thread reservation (peak device memory unchanged, 98.3 B a particle).
-MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "56"))
+# H200, 2026-12-02 (pair bodies of ~55 instructions): cap 48 is 2.2 % faster per forces than 56
+# (6.40 / 6.55 ms at 4.4 M), whole steps 274.1 / 266.0 M particle-steps/s at 4.4 M and 281.3 /
+# 278.3 M at 13.3 M; its 72-80 B stack frame (spills of the row set-up, none in the candidate
+# loops) stays within the default per-thread local memory (peak 98.3 B a particle at 4.4 M).
+MAXREG = int(os.environ.get("SPHGRAPH_CUDA_MAXREG", "48"))
 _FORCES: dict = {}
 
 
