@@ -61,15 +61,14 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
     switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term / h.
     """
     fac = grad_factor(r2, prm, kernel)
-    frx = fac * drx
-    fry = fac * dry
-    frz = fac * drz
     inv_rho_b = 1.0 / rho_b          # shared reciprocals: divisions dominate the pair cost
     inv_r2e = 1.0 / (r2 + prm[P_ETA2])
-    # factors of a alone (m_b rho_a, -m_b / rho_a) first: the kernels hoist them out of the
-    # loop over b, and with fastmath a product is not reassociated for them
-    ar = (mass_b * rho_a) * (dvx * frx + dvy * fry + dvz * frz) * inv_rho_b
     dot = dvx * drx + dvy * dry + dvz * drz
+    # grad W = F r_ab, so v_ab . grad W = F (v_ab . r_ab) and r_ab . grad W = F r^2: two
+    # scalar products a pair instead of four, and the momentum sum takes (coef F) r_ab.
+    # Factors of a alone (m_b rho_a, -m_b / rho_a) first: the kernels hoist them out of the
+    # loop over b, and with fastmath a product is not reassociated for them
+    ar = (mass_b * rho_a) * (fac * dot) * inv_rho_b
     dot_rr2 = dot * inv_r2e
     coef = (p_a + p_b) * (-mass_b * inv_rho_a) * inv_rho_b
     if dot < 0.0:
@@ -77,10 +76,11 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
         # 1 / rho_bar = 2 / (rho_a + rho_b) as a reciprocal (fastmath: one approximate
         # reciprocal, where a division keeps a range check), the constants in one factor
         coef += (2.0 * alpha * prm[P_C0] * prm[P_H] * mass_b) * dot_rr2 * (1.0 / (rho_a + rho_b))
-    ax = coef * frx
-    ay = coef * fry
-    az = coef * frz
-    rfr = drx * frx + dry * fry + drz * frz
+    cf = coef * fac
+    ax = cf * drx
+    ay = cf * dry
+    az = cf * drz
+    rfr = fac * r2
     if laminar:
         lam = mass_b * 4.0 * prm[P_NU] * rfr * inv_r2e / (rho_a + rho_b)
         ax += lam * dvx
