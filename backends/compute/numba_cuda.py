@@ -910,28 +910,42 @@ class NumbaCUDA(ComputeBackend):
 
     def _permute(self, state, dv, k):
         """Every row array reordered by perm: gathered into the pos4 buffer (dead until
-        _pack rebuilds it) and copied back, so no array needs a twin."""
+        _pack rebuilds it) and copied back, so no array needs a twin. Up to three arrays
+        go in one gather and one copy (k_gather3 / k_copy3), as many as fit the buffer's
+        16 bytes a row, widest first so each view is aligned: 3D Symplectic, positions x
+        and y, then z with kind and id (4 launches and one read of perm each, where one
+        array a pass took 10)."""
         n, perm = dv.n, dv.perm
         b = CK.blocks(n)
         A = dv.arrays
-
-        def through(name):
-            a = A[name]
-            s = dv.scratch(a.dtype, n)
-            k.k_gather[b, CK.BLOCK](a, perm, n, s)
-            k.k_copy[b, CK.BLOCK](s, n, a)
-
-        for d in range(dv.dim):
-            through("p" + _VEC[d])
         k.k_gather4[b, CK.BLOCK](A["vel4"], perm, n, A["pos4"])
         k.k_copy[CK.blocks(4 * n), CK.BLOCK](A["pos4"], 4 * n, A["vel4"])
-        hist = getattr(dv, "integrator", "verlet") == "verlet"   # Symplectic: history rewritten each step
-        if hist:
-            for d in range(dv.dim):
-                through("vm" + _VEC[d])
-            through("rhom")
-        through("kind")
-        through("id")
+        names = ["p" + _VEC[d] for d in range(dv.dim)]
+        if getattr(dv, "integrator", "verlet") == "verlet":   # Symplectic: history rewritten each step
+            names += ["vm" + _VEC[d] for d in range(dv.dim)] + ["rhom"]
+        names += ["kind", "id"]
+        names.sort(key=lambda nm: -A[nm].dtype.itemsize)        # stable: the order above within a width
+        groups, cur, width = [], [], 0
+        for nm in names:
+            w = A[nm].dtype.itemsize
+            if len(cur) == 3 or width + w > 16:
+                groups.append(cur)
+                cur, width = [], 0
+            cur.append(nm)
+            width += w
+        groups.append(cur)
+        for g in groups:
+            arrs = [A[nm] for nm in g]
+            views, off = [], 0               # bytes into the buffer, a multiple of each width
+            for a in arrs:
+                w = a.dtype.itemsize
+                views.append(dv.scratch(a.dtype, n, off * n // w))
+                off += w
+            m = len(arrs)
+            arrs += [arrs[0]] * (3 - m)      # unused slots (m tells the kernels)
+            views += [views[0]] * (3 - m)
+            k.k_gather3[b, CK.BLOCK](*arrs, m, perm, n, *views)
+            k.k_copy3[b, CK.BLOCK](*views, m, n, *arrs)
 
     def _pack(self, state, dv, k, with_press):
         """pos4 records from the float64 positions (and the pressure of rho)."""
