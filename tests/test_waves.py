@@ -71,8 +71,14 @@ def test_damping_zone_removes_kinetic_energy_in_the_zone():
 
 @pytest.mark.slow
 def test_flume_regular_wave_within_5_percent_at_one_wavelength():
+    """Issue 9: the mean zero up-crossing height and period one wavelength from the paddle
+    (dp 0.015, order-2 stroke, no artificial viscosity) within 5 % of the paddle's H and T,
+    over waves 3-6 (to 8 s) as measured in docs/features.md. The particles' chaos makes the
+    height swing ~2 % from wave to wave and with round-off: with only two waves (to 6.5 s)
+    the mean moved between -3.9 and -6.4 % under changes of the pair arithmetic alone
+    (positions 1e-16 apart after 10 steps, 3e-11 after 3000); over four waves -4.2 %."""
     import wave_flume
-    end = 6.5
+    end = 8.0
     r = wave_flume.flume(dp=0.015, end_time=end, height=0.08, period=1.0, depth=0.3, order=2,
                          physics={"visc_alpha": 0.0, "laminar_nu": 1e-6})
     g = next(iter(r["eta"]))                       # one wavelength from the paddle's face
