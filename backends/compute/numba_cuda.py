@@ -38,6 +38,7 @@ from sphgraph.registry import register
 from . import cuda_halo as CH
 from . import cuda_kernels as CK
 from . import cuda_launch as CL
+from . import upload_kernels as UK
 from .base import ComputeBackend, dt_from_terms
 
 _VEC = ("x", "y", "z")
@@ -48,6 +49,7 @@ FRESH_PRESSURE = True
 # coordinate; k_forces_fv). SPHGRAPH_CUDA_TRIM=0: whole cells, as k_forces_f.
 TRIM = os.environ.get("SPHGRAPH_CUDA_TRIM", "1") != "0"
 TRIM_OFF = 1e30          # tpad that keeps every row whole (finite: fastmath assumes no inf)
+UPLOAD_ROWS = 1 << 23    # rows a chunk of the upload (prepare): a 256 MiB staging buffer
 
 
 class DeviceState:
@@ -480,7 +482,11 @@ class NumbaCUDA(ComputeBackend):
         old = state.extra.get("dev")
         if old is not None and old.__dict__.get("host_obj") is p and old.n == p.n:
             return   # same host row set as on the device (no rows left or came): keep the device rows
-        ref = old.ref if old is not None else (p.pos.min(axis=0) if p.n else np.zeros(dim))
+        lo = hi = None
+        if p.n:     # the rows' bounding box (the first grid), one parallel pass (upload_kernels)
+            lo, hi = np.empty(dim), np.empty(dim)
+            UK.column_bounds(p.pos, lo, hi)
+        ref = old.ref if old is not None else (lo.copy() if p.n else np.zeros(dim))
         dv = DeviceState(p.n, dim, dt, ref)
         dv.nf = int(np.count_nonzero(p.kind == 0)) if p.n else 0
         # row capacity: with several ranks, room for rows that arrive (appended on the
@@ -490,33 +496,35 @@ class NumbaCUDA(ComputeBackend):
             n += max(p.n // 16, 1024)
         dv.cap = n
         up = 0
+        # a chunk of rows at a time through one staging buffer, filled by all cores in the
+        # device's type and layout (upload_kernels): no full-size host temporaries
+        rows = min(p.n, UPLOAD_ROWS)
+        stage = np.empty(32 * max(rows, 1), np.uint8)     # the widest: float64 vel4 records
 
-        def put(name, host, dtype):
+        def put(name, dtype, fill, per=1):
             nonlocal up
-            h = np.ascontiguousarray(host, dtype=dtype)
-            m = h.shape[0]
-            per = 4 if name == "vel4" else 1
             dv.arrays[name] = d = cuda.device_array(per * n, dtype)
-            if m:
-                d[:m].copy_to_device(h)
-            up += h.nbytes
+            for a in range(0, p.n, max(rows, 1)):
+                m = min(rows, p.n - a)
+                h = stage[:per * m * np.dtype(dtype).itemsize].view(dtype)
+                fill(a, h)
+                d[per * a:per * (a + m)].copy_to_device(h)
+                up += h.nbytes
 
         for d in range(3):
             ax = _VEC[d]
             if d < dim:
-                put("p" + ax, p.pos[:, d], np.float64)
-                put("vm" + ax, p.vel_m1[:, d], dt)
+                put("p" + ax, np.float64, lambda a, h, d=d: UK.column_into(p.pos, d, a, h))
+                put("vm" + ax, dt, lambda a, h, d=d: UK.column_into(p.vel_m1, d, a, h))
             else:   # 2D: one-element dummies
                 for pre in ("p", "vm"):
                     dv.arrays[pre + ax] = cuda.device_array(1, np.float64 if pre == "p" else dt)
-        v4 = np.zeros((p.n, 4), dt)     # (vx, vy, vz, rho) records: velocity and density live here
-        if p.n:
-            v4[:, :dim] = p.vel
-            v4[:, 3] = p.rho
-        put("vel4", v4.reshape(-1), dt)
-        put("rhom", p.rho_m1, dt)
-        put("kind", p.kind, np.int8)
-        put("id", p.id, np.int64 if p.n and int(p.id.max()) >= 2 ** 31 - 1 else np.int32)
+        # (vx, vy, vz, rho) records: velocity and density live here
+        put("vel4", dt, lambda a, h: UK.records_into(p.vel, p.rho, a, h), per=4)
+        put("rhom", dt, lambda a, h: UK.flat_into(p.rho_m1, a, h))
+        put("kind", np.int8, lambda a, h: UK.flat_into(p.kind, a, h))
+        wide = p.n and UK.int_max(p.id) >= 2 ** 31 - 1
+        put("id", np.int64 if wide else np.int32, lambda a, h: UK.flat_into(p.id, a, h))
         # work arrays (not uploaded)
         dv.arrays["pos4"] = cuda.device_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
         dv.fit_fluid()                                           # reduced acceleration, fluid rows
@@ -532,8 +540,8 @@ class NumbaCUDA(ComputeBackend):
         dv.arrays["chk_box"] = cuda.device_array(6, np.float64)
         dv.box = np.zeros((2, 3))
         if p.n:
-            dv.box[0, :dim] = p.pos.min(axis=0)
-            dv.box[1, :dim] = p.pos.max(axis=0)
+            dv.box[0, :dim] = lo
+            dv.box[1, :dim] = hi
         dv.__dict__["host_obj"] = p
         if old is not None and "integrator" in old.__dict__:
             dv.__dict__["integrator"] = old.__dict__["integrator"]
