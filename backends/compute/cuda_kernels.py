@@ -303,12 +303,6 @@ def k_sort_cells_by(start, ncells, perm, key):
         perm[j + 1] = v
 
 
-def k_gather(src, perm, n, dst):
-    i = cuda.grid(1)
-    if i < n:
-        dst[i] = src[perm[i]]
-
-
 def k_gather3(a, b, c, m, perm, n, sa, sb, sc):
     """The first m (1-3) of a, b, c gathered by perm in one pass (numba_cuda._permute:
     one launch and one read of perm for up to three arrays)."""
@@ -1737,7 +1731,7 @@ def k_count_pairs2(dpx, dpy, dpz, pos4, n, nf, start, ncells, o0, o1, o2, inv_si
 
 
 _KERNELS = ("k_fill", "k_copy", "k_keys_hist", "k_scan_blocks", "k_scan_add", "k_set_last", "k_scatter",
-            "k_sort_cells", "k_sort_cells_by", "k_gather", "k_gather3", "k_copy3", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
+            "k_sort_cells", "k_sort_cells_by", "k_gather3", "k_copy3", "k_gather_pos", "k_rel", "k_pressure", "k_forces", "k_reduce",
             "k_dt_terms", "k_check_bounds", "k_check_init", "k_verlet", "k_sym_predict", "k_sym_correct", "k_count_pairs",
             "k_keys_hist2", "k_gather4", "k_pack", "k_count_pairs2", "k_compact_perm",
             "k_mig_keep", "k_pack_leaving", "k_unpack_rows", "k_pack_edge", "k_pick4",

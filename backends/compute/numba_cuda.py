@@ -488,7 +488,7 @@ class NumbaCUDA(ComputeBackend):
             UK.column_bounds(p.pos, lo, hi)
         ref = old.ref if old is not None else (lo.copy() if p.n else np.zeros(dim))
         dv = DeviceState(p.n, dim, dt, ref)
-        dv.nf = int(np.count_nonzero(p.kind == 0)) if p.n else 0
+        dv.nf = p.n_fluid
         # row capacity: with several ranks, room for rows that arrive (appended on the
         # device by add_displaced; a rank that outgrows it is uploaded again, larger)
         n = max(p.n, 1)
@@ -928,21 +928,8 @@ class NumbaCUDA(ComputeBackend):
         A = dv.arrays
         k.k_gather4[b, CK.BLOCK](A["vel4"], perm, n, A["pos4"])
         k.k_copy[CK.blocks(4 * n), CK.BLOCK](A["pos4"], 4 * n, A["vel4"])
-        names = ["p" + _VEC[d] for d in range(dv.dim)]
-        if getattr(dv, "integrator", "verlet") == "verlet":   # Symplectic: history rewritten each step
-            names += ["vm" + _VEC[d] for d in range(dv.dim)] + ["rhom"]
-        names += ["kind", "id"]
-        names.sort(key=lambda nm: -A[nm].dtype.itemsize)        # stable: the order above within a width
-        groups, cur, width = [], [], 0
-        for nm in names:
-            w = A[nm].dtype.itemsize
-            if len(cur) == 3 or width + w > 16:
-                groups.append(cur)
-                cur, width = [], 0
-            cur.append(nm)
-            width += w
-        groups.append(cur)
-        for g in groups:
+        hist = getattr(dv, "integrator", "verlet") == "verlet"   # Symplectic: history rewritten each step
+        for g in self._permute_groups(dv, hist):
             arrs = [A[nm] for nm in g]
             views, off = [], 0               # bytes into the buffer, a multiple of each width
             for a in arrs:
@@ -954,6 +941,30 @@ class NumbaCUDA(ComputeBackend):
             views += [views[0]] * (3 - m)
             k.k_gather3[b, CK.BLOCK](*arrs, m, perm, n, *views)
             k.k_copy3[b, CK.BLOCK](*views, m, n, *arrs)
+
+    @staticmethod
+    def _permute_groups(dv, hist):
+        """_permute's arrays in groups of at most three and 16 bytes a row, widest first
+        (cached per device state: the same every sort)."""
+        cache = dv.__dict__.setdefault("_permute_groups", {})
+        if hist not in cache:
+            A = dv.arrays
+            names = ["p" + _VEC[d] for d in range(dv.dim)]
+            if hist:
+                names += ["vm" + _VEC[d] for d in range(dv.dim)] + ["rhom"]
+            names += ["kind", "id"]
+            names.sort(key=lambda nm: -A[nm].dtype.itemsize)        # stable: the order above within a width
+            groups, cur, width = [], [], 0
+            for nm in names:
+                w = A[nm].dtype.itemsize
+                if len(cur) == 3 or width + w > 16:
+                    groups.append(cur)
+                    cur, width = [], 0
+                cur.append(nm)
+                width += w
+            groups.append(cur)
+            cache[hist] = groups
+        return cache[hist]
 
     def _pack(self, state, dv, k, with_press):
         """pos4 records from the float64 positions (and the pressure of rho)."""
