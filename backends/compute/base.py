@@ -19,6 +19,12 @@ class ComputeBackend:
     def device_name(self) -> str:
         return "cpu"
 
+    def counters(self) -> dict:
+        """Cumulative counts of what a step costs the host beyond its kernels (a device
+        backend: device and pinned allocations, host waits for the device); {} when the
+        backend has none to report."""
+        return {}
+
     # -- set-up and transfers ----------------------------------------------------------
     def prepare(self, state) -> None:
         """Allocate what the kernels need for `state` (called after any change of N)."""

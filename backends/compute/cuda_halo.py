@@ -124,6 +124,7 @@ def edge_layout(m: int, dim: int, dtype):
 def send_edge(be, state, dv, a0, m0, a1, m, thr, below, axis, slot) -> DeviceEdge:
     """Pack rows a0..a0+m0-1 and a1..a1+(m-m0)-1 into this rank's buffer for `slot` (the
     message tag) and describe them; the host waits for the copy before the message goes."""
+    from . import numba_cuda as NC
     from .numba_cuda import _split, _wait
     k, s, A = be._k(state), be._s(state), dv.arrays
     lay, nb = edge_layout(m, dv.dim, dv.dtype)
@@ -131,7 +132,7 @@ def send_edge(be, state, dv, a0, m0, a1, m, thr, below, axis, slot) -> DeviceEdg
     e = slots.get(slot)
     if e is None or e["buf"].shape[0] < nb:
         old = e
-        e = {"buf": cuda.device_array(int(nb * 1.5) + 4096, np.uint8), "version": 0 if old is None else
+        e = {"buf": NC.dev_array(int(nb * 1.5) + 4096, np.uint8), "version": 0 if old is None else
              old["version"] + 1, "gen": 0 if old is None else old["gen"], "sent": set(), "handle": None,
              "retired": [] if old is None else old["retired"] + [old["buf"]]}
         slots[slot] = e
@@ -171,6 +172,7 @@ def receive_edge(be, state, edge) -> None:
     """Bring a DeviceEdge's rows over, cut and bin them on the device: `edge` becomes the
     halo, with the device arrays the halo force kernels read."""
     from sphgraph.cells import CellGrid, reach_cells
+    from . import numba_cuda as NC
     from .numba_cuda import _VEC, _count, _layout, _split, _wait, device_grid
     dv = state.extra["dev"]
     k, s = be._k(state), be._s(state)
@@ -191,7 +193,7 @@ def receive_edge(be, state, edge) -> None:
     d = _split(raw, lay)
     meta = dv.arrays.get(f"edge_meta{tag}")
     if meta is None:
-        meta = dv.arrays[f"edge_meta{tag}"] = cuda.device_array(9, np.float64)
+        meta = dv.arrays[f"edge_meta{tag}"] = NC.dev_array(9, np.float64)
     k.k_edge_init[1, 1](d["head"], meta)
     k.k_edge_bounds[min(CK.blocks(m, 256), CK.REDUCE_BLOCKS), 256](d["pos"], d["kind"], m, dim, edge.axis,
                                                                    edge.thr, edge.below, meta)

@@ -69,11 +69,11 @@ class DeviceState:
         self.parts = {}
         self.cell_cap = 0
         self.scan_tmp = []
-        self.pinned_dt = cuda.pinned_array(3, np.float64) if not CK.SIMULATOR else np.zeros(3)
-        self.pinned_chk = cuda.pinned_array(7, np.float64) if not CK.SIMULATOR else np.zeros(7)
-        self.pinned_bad = cuda.pinned_array(1, np.int64) if not CK.SIMULATOR else np.zeros(1, np.int64)
-        self.pinned_i4 = cuda.pinned_array(4, np.int32) if not CK.SIMULATOR else np.zeros(4, np.int32)
-        self.pinned_meta = cuda.pinned_array(9, np.float64) if not CK.SIMULATOR else np.zeros(9)  # cuda_halo
+        self.pinned_dt = pinned_array(3, np.float64)
+        self.pinned_chk = pinned_array(7, np.float64)
+        self.pinned_bad = pinned_array(1, np.int64)
+        self.pinned_i4 = pinned_array(4, np.int32)
+        self.pinned_meta = pinned_array(9, np.float64)  # cuda_halo
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
         self.halo_last = None                       # the halo prepared last (may not be in state.halos yet)
@@ -121,7 +121,7 @@ class DeviceState:
         for ax in _VEC[:self.dim]:
             a = self.arrays.get("a" + ax)
             if a is None or a.shape[0] < self.nf or a.shape[0] < 1:
-                self.arrays["a" + ax] = cuda.device_array(want, self.dtype)
+                self.arrays["a" + ax] = dev_array(want, self.dtype)
 
     def scratch(self, dtype, m, off=0):
         """m elements of `dtype` from element `off` on in the pos4 buffer (None when they
@@ -147,19 +147,20 @@ class DeviceState:
         first; a copy into it is waited for by its caller, and what is read from it is
         copied out."""
         if self.host_busy is not None:
+            COUNTERS["host_wait"] += 1
             self.host_busy.synchronize()
             self.host_busy = None
         b = self.pinned_xfer
         if b is None or b.shape[0] < nbytes:
             cap = int(nbytes * 1.5) + 4096
-            b = self.pinned_xfer = cuda.pinned_array(cap, np.uint8) if not CK.SIMULATOR else np.empty(cap, np.uint8)
+            b = self.pinned_xfer = pinned_array(cap, np.uint8)
         return b[:nbytes]
 
     def dev_buf(self, name, nbytes):
         """The first `nbytes` of the device scratch `arrays[name]` (uint8), grown with spare room."""
         a = self.arrays.get(name)
         if a is None or a.shape[0] < nbytes:
-            a = self.arrays[name] = cuda.device_array(int(nbytes * 1.5) + 4096, np.uint8)
+            a = self.arrays[name] = dev_array(int(nbytes * 1.5) + 4096, np.uint8)
         return a[:nbytes]
 
     def nbytes(self) -> int:
@@ -266,8 +267,26 @@ def _event(timing):
     return cuda.event() if CK.SIMULATOR else cuda.event(timing=timing)
 
 
+# per process (mock ranks share it): what the step costs the host in allocations and waits
+COUNTERS = {"device_alloc": 0, "pinned_alloc": 0, "host_wait": 0}
+
+
+def dev_array(n, dtype):
+    """cuda.device_array, counted (COUNTERS["device_alloc"])."""
+    COUNTERS["device_alloc"] += 1
+    return cuda.device_array(n, dtype)
+
+
+def pinned_array(n, dtype):
+    """A page-locked host array (plain numpy in the simulator), counted."""
+    COUNTERS["pinned_alloc"] += 1
+    return cuda.pinned_array(n, dtype) if not CK.SIMULATOR else np.zeros(n, dtype)
+
+
 def _wait(stream):
-    """The host waits for `stream` only (0, the default stream: copies were synchronous)."""
+    """The host waits for `stream` only (0, the default stream: the copy before was
+    synchronous); either way a host wait, counted."""
+    COUNTERS["host_wait"] += 1
     if stream:
         stream.synchronize()
 
@@ -364,6 +383,9 @@ class NumbaCUDA(ComputeBackend):
         d = cuda.get_current_device()
         name = d.name.decode() if isinstance(d.name, bytes) else str(d.name)
         return f"cuda {name} (cc {d.compute_capability[0]}.{d.compute_capability[1]})"
+
+    def counters(self) -> dict:
+        return dict(COUNTERS)
 
     def _k(self, state):
         return self._on(state, CK.build(state.dtype))
@@ -503,7 +525,7 @@ class NumbaCUDA(ComputeBackend):
 
         def put(name, dtype, fill, per=1):
             nonlocal up
-            dv.arrays[name] = d = cuda.device_array(per * n, dtype)
+            dv.arrays[name] = d = dev_array(per * n, dtype)
             for a in range(0, p.n, max(rows, 1)):
                 m = min(rows, p.n - a)
                 h = stage[:per * m * np.dtype(dtype).itemsize].view(dtype)
@@ -518,7 +540,7 @@ class NumbaCUDA(ComputeBackend):
                 put("vm" + ax, dt, lambda a, h, d=d: UK.column_into(p.vel_m1, d, a, h))
             else:   # 2D: one-element dummies
                 for pre in ("p", "vm"):
-                    dv.arrays[pre + ax] = cuda.device_array(1, np.float64 if pre == "p" else dt)
+                    dv.arrays[pre + ax] = dev_array(1, np.float64 if pre == "p" else dt)
         # (vx, vy, vz, rho) records: velocity and density live here
         put("vel4", dt, lambda a, h: UK.records_into(p.vel, p.rho, a, h), per=4)
         put("rhom", dt, lambda a, h: UK.flat_into(p.rho_m1, a, h))
@@ -526,18 +548,19 @@ class NumbaCUDA(ComputeBackend):
         wide = p.n and UK.int_max(p.id) >= 2 ** 31 - 1
         put("id", np.int64 if wide else np.int32, lambda a, h: UK.flat_into(p.id, a, h))
         # work arrays (not uploaded)
-        dv.arrays["pos4"] = cuda.device_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
+        dv.arrays["pos4"] = dev_array(4 * n, dt)   # (x-ref, y-ref, z-ref, p) records; sort scratch
         dv.fit_fluid()                                           # reduced acceleration, fluid rows
         for ax in _VEC[dim:]:
-            dv.arrays["a" + ax] = cuda.device_array(1, dt)
-        dv.arrays["ar"] = cuda.device_array(n, dt)
+            dv.arrays["a" + ax] = dev_array(1, dt)
+        dv.arrays["ar"] = dev_array(n, dt)
         # the viscous-dt term: one maximum (the force kernels' block maxima), zeroed after
         # each stage's integration
-        dv.arrays["visc"] = cuda.to_device(np.zeros(1, dt))
+        dv.arrays["visc"] = dev_array(1, dt)
+        dv.arrays["visc"].copy_to_device(np.zeros(1, dt))
         dv.make_views()
-        dv.arrays["dtout"] = cuda.device_array(3, np.float64)
-        dv.arrays["chk_bad"] = cuda.device_array(1, np.int64)
-        dv.arrays["chk_box"] = cuda.device_array(6, np.float64)
+        dv.arrays["dtout"] = dev_array(3, np.float64)
+        dv.arrays["chk_bad"] = dev_array(1, np.int64)
+        dv.arrays["chk_box"] = dev_array(6, np.float64)
         dv.box = np.zeros((2, 3))
         if p.n:
             dv.box[0, :dim] = lo
@@ -612,22 +635,22 @@ class NumbaCUDA(ComputeBackend):
             if dv.box[0, a] >= domain.lo and dv.box[1, a] < domain.hi:
                 empty = state.particles.take(np.zeros(0, np.int64))
                 return {-1: empty, 1: empty}
-            out = self._remove_rows(state, dv, domain)
-            if out is not None:
-                return out
+            return self._remove_rows(state, dv, domain)
         self.sync_host(state)
-        return domain.take_displaced(state)
+        out = domain.take_displaced(state)
+        if any(r.n for r in out.values()):
+            self.prepare(state)     # the device rows follow the host's (prepare sees a new row set)
+        return out
 
     def _remove_rows(self, state, dv, domain):
         """{-1: rows below lo, +1: rows at or above hi} as host Particles, removed from
-        the device rows (kept rows compacted in their order); None when more rows leave
-        than max(1024, n / 32) (the caller then goes through the host). Bus: the count,
-        then the leaving rows packed in one buffer (k_pack_leaving), one copy."""
+        the device rows (kept rows compacted in their order), however many leave (moved
+        cuts displace many). Bus: the count, then the leaving rows packed in one buffer
+        (k_pack_leaving), one copy."""
         k = self._k(state)
         n, A = dv.n, dv.arrays
-        lim = max(1024, n // 32)
         if "mig_cnt" not in A:
-            A["mig_cnt"] = cuda.device_array(1, np.int32)
+            A["mig_cnt"] = dev_array(1, np.int32)
         keep = dv.scratch(np.int32, n)             # the pos4 records are dead until the next
         pos = dv.scratch(np.int32, n, n)           # sort rebuilds them (ax holds fluid rows only)
         cnt = A["mig_cnt"]
@@ -639,8 +662,6 @@ class NumbaCUDA(ComputeBackend):
         _wait(s)
         m = int(dv.pinned_i4[0])
         _count(state, "d2h_bytes", "displaced", 4)
-        if m > lim:
-            return None
         if m == 0:
             empty = state.particles.take(np.zeros(0, np.int64))
             return {-1: empty, 1: empty}
@@ -781,7 +802,7 @@ class NumbaCUDA(ComputeBackend):
         k = self._k(state)
         A, dim = dv.arrays, dv.dim
         if "pick4" not in A:
-            A["pick4"] = cuda.device_array(4, np.int32)
+            A["pick4"] = dev_array(4, np.int32)
         s = self._s(state)
         self._copy_mark(state, "edge_d2h", True)
         k.k_pick4[1, 1](A["start"], *idx, A["pick4"])      # the 4 range ends: one copy
@@ -845,10 +866,10 @@ class NumbaCUDA(ComputeBackend):
         nb = (n + per - 1) // per
         tmp = dv.scan_tmp if tmp is None else tmp
         while len(tmp) < 2 * level + 2:
-            tmp.append(cuda.device_array(1, np.int64))
+            tmp.append(dev_array(1, np.int64))
         if tmp[2 * level].shape[0] < nb:
-            tmp[2 * level] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
-            tmp[2 * level + 1] = cuda.device_array(int(nb * 1.25) + 1, np.int64)
+            tmp[2 * level] = dev_array(int(nb * 1.25) + 1, np.int64)
+            tmp[2 * level + 1] = dev_array(int(nb * 1.25) + 1, np.int64)
         sums, offs = tmp[2 * level], tmp[2 * level + 1]
         k.k_scan_blocks[nb, 256](counts, n, out, sums)
         if nb > 1:
@@ -870,7 +891,7 @@ class NumbaCUDA(ComputeBackend):
         nk = 2 * ncells
         if dv.cell_cap < nk + 1:
             cap = int((nk + 1) * 1.05) + 16    # room for a grid that grows a little (5 %: memory counts)
-            dv.arrays["start"] = cuda.device_array(cap, np.int32)
+            dv.arrays["start"] = dev_array(cap, np.int32)
             dv.cell_cap = cap
             dv.arrays.pop("counts", None)
         start = dv.start
@@ -878,13 +899,13 @@ class NumbaCUDA(ComputeBackend):
         koff = nk
         if counts is None:
             if "counts" not in dv.arrays or dv.arrays["counts"].shape[0] < nk:
-                dv.arrays["counts"] = cuda.device_array(dv.cell_cap, np.int32)
+                dv.arrays["counts"] = dev_array(dv.cell_cap, np.int32)
             counts = dv.arrays["counts"]
             koff = 0
         keys = dv.scratch(np.int32, n, koff)          # the cell keys after it (dead once scattered)
         if keys is None:
             if "keys" not in dv.arrays or dv.arrays["keys"].shape[0] < n:
-                dv.arrays["keys"] = cuda.device_array(max(dv.cap, 1), np.int32)
+                dv.arrays["keys"] = dev_array(max(dv.cap, 1), np.int32)
             keys = dv.arrays["keys"]
         inv = 1.0 / c.cell_size
         if n:
@@ -1049,9 +1070,9 @@ class NumbaCUDA(ComputeBackend):
             e = fit[0]
         elif free:
             e = free[0]
-            e["buf"] = cuda.device_array(int(nbytes * 1.25) + 4096, np.uint8)
+            e["buf"] = dev_array(int(nbytes * 1.25) + 4096, np.uint8)
         else:
-            e = {"buf": cuda.device_array(int(nbytes * 1.25) + 4096, np.uint8)}
+            e = {"buf": dev_array(int(nbytes * 1.25) + 4096, np.uint8)}
             dv.halo_pool.append(e)
         ev = e.get("read_ev")
         s = self._s(state)
@@ -1100,10 +1121,10 @@ class NumbaCUDA(ComputeBackend):
             buf = dv.parts.get(part)
             if buf is None or buf["ar"].shape[0] < max(n, 1):   # sized by the row capacity: kept while rows come and go
                 m = max(n, dv.cap, 1)
-                buf = {"x": cuda.device_array(m, dv.dtype), "y": cuda.device_array(m, dv.dtype),
-                       "z": cuda.device_array(m if dim == 3 else 1, dv.dtype),
-                       "ar": cuda.device_array(m, dv.dtype), "ddt": cuda.device_array(m, dv.dtype),
-                       "cancel": cuda.device_array(m, np.int8)}
+                buf = {"x": dev_array(m, dv.dtype), "y": dev_array(m, dv.dtype),
+                       "z": dev_array(m if dim == 3 else 1, dv.dtype),
+                       "ar": dev_array(m, dv.dtype), "ddt": dev_array(m, dv.dtype),
+                       "cancel": dev_array(m, np.int8)}
                 dv.parts[part] = buf
             out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
         gvec = np.zeros(3)
@@ -1277,7 +1298,7 @@ class NumbaCUDA(ComputeBackend):
         if not n:
             return 0
         g = dv.grid
-        counts = cuda.device_array(n, np.int32)
+        counts = dev_array(n, np.int32)
         sup2 = dv.dtype.type(state.prm[P_SUPPORT2])
         k.k_count_pairs2[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
             A["px"], A["py"], A["pz"], A["pos4"], n, dv.nf, A["start"], int(g["ncells"]),
