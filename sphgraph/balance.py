@@ -235,18 +235,14 @@ class Balancer:
         st = ctx.state
         t0 = time.perf_counter()
         dom = ctx.domain
-        sync = getattr(ctx.compute, "sync_host", None)   # device-resident rows: current host positions
-        if sync is not None:
-            sync(st)
-        x = st.particles.pos[st.particles.kind == FLUID, self.axis]
-        n_own = len(x)
+        be = ctx.compute
+        n_own = be.fluid_count(st)
         n_halo = sum(int(h.n_fluid) if getattr(h, "n_fluid", None) is not None    # a device halo (ipc)
                      else int(np.count_nonzero(h.kind == FLUID)) for h in st.halos.values() if h is not None)
         steps = max(self.steps_since.get(ctx.rank, self.cfg.every), 1)
         fsec = self.force_s.pop(ctx.rank, 0.0) / steps
         self.steps_since[ctx.rank] = self.cfg.every
-        xa = st.particles.pos[:, self.axis]  # the slabs span all particles, fluid or not
-        lo, hi = (float(xa.min()), float(xa.max())) if len(xa) else (np.inf, -np.inf)
+        lo, hi = be.axis_extent(st, self.axis)   # the slabs span all particles, fluid or not
         cap = None
         if self.cfg.policy == "memory":
             cap = self.capacity(st) if self.capacity is not None else self.cfg.max_particles_per_rank
@@ -257,7 +253,7 @@ class Balancer:
         gl, gh = min(i[3] for i in info), max(i[4] for i in info)
         bins = max(int((gh - gl) / (self.dp / 16)) + 1, 1)
         edges = np.linspace(gl, gh + 1e-9, bins + 1)
-        hist = np.histogram(x, bins=edges)[0].astype(np.int64)
+        hist = be.fluid_histogram(st, self.axis, edges)
         hist = np.sum(ctx.comm.allgather(hist), axis=0).astype(float)
         reach = dom.reach
         if fsecs.min() > 0:   # every rank measured: fold this window's speeds into the average

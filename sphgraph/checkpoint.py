@@ -274,9 +274,7 @@ def gather_state(sim) -> list[dict] | None:
     """Every rank's raw rows (current order) on the root, in rank order; None elsewhere."""
     per = {}
     for c in sim.contexts:
-        sync = getattr(sim.compute, "sync_host", None)
-        if sync is not None:
-            sync(c.state)
+        sim.compute.sync_host(c.state)
         per[c.rank] = {k: v for k, v in c.state.particles.arrays().items() if k in FIELDS}
     return sim.comm.gather_rows(per)
 

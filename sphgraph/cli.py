@@ -41,10 +41,10 @@ def _run_flags(p):
     p.add_argument("--watchdog", type=float, metavar="SECONDS",
                    help="stop every rank when one waits longer than SECONDS in a receive or collective "
                         "(MPI: default 120, 0 = off; mock: virtual seconds, off by default)")
-    p.add_argument("--halo-transport", metavar="staged|ipc",
+    p.add_argument("--halo-transport", metavar="auto|staged|ipc",
                    help="how halos travel between GPU ranks (numba-cuda): staged through the host "
-                        "(default; works anywhere) or ipc, device to device (CUDA IPC handles, ranks "
-                        "of one host)")
+                        "(works anywhere) or ipc, device to device (CUDA IPC handles, ranks of one "
+                        "host); auto (default): ipc for mock ranks, staged under MPI")
     # load balancing (sphgraph.balance): these flags > the scene's [balance] > the schedule's [rebalance]
     p.add_argument("--rebalance-every", type=_balance_value("every", int), metavar="K",
                    help="check the balance every K steps (schedule default 50)")

@@ -39,7 +39,9 @@ def equal_cuts(particles: Particles, axis: int, nranks: int, h: float, weights=N
                          f"per subdomain), the particles span {hi - lo:.4g} m: use fewer ranks")
     w = np.ones(nranks) if weights is None else np.asarray(weights, float)
     frac = np.cumsum(w)[:-1] / w.sum()
-    cuts = [x[min(len(x) - 1, int(round(f * len(x))))] for f in frac]
+    # each cut midway between the quantile's coordinate and the next lower one: a cut on a
+    # lattice plane would have its rows cross back and forth with round-off every step
+    cuts = [_between(x, x[min(len(x) - 1, int(round(f * len(x))))]) for f in frac]
     cuts = np.array([lo] + cuts + [hi + 1e-9])
     # enforce the 6h minimum width by sweeping forward, then backward
     for r in range(1, nranks):
@@ -48,6 +50,12 @@ def equal_cuts(particles: Particles, axis: int, nranks: int, h: float, weights=N
         cuts[r] = min(cuts[r], cuts[r + 1] - min_width)
     cuts[0], cuts[-1] = -np.inf, np.inf
     return cuts
+
+
+def _between(x, c) -> float:
+    """Midway between c and the largest coordinate of sorted x below it (c if none)."""
+    j = int(np.searchsorted(x, c, side="left"))
+    return 0.5 * (float(x[j - 1]) + float(c)) if j > 0 else float(c)
 
 
 def split(particles: Particles, axis: int, cuts: np.ndarray) -> list[Particles]:

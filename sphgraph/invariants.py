@@ -42,7 +42,7 @@ class Invariants:
 
     def __init__(self, sim):
         self.n_excluded = 0
-        self.host = not hasattr(sim.compute, "sync_host")
+        self.host = not sim.compute.device_resident
         self.n0, self.s10, self.s20 = self._global(sim)
         self.min0 = self.max0 = None   # of the id set, known at the first full check (root)
 

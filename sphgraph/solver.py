@@ -89,8 +89,10 @@ class Simulation:
         self.stages = 1 if phys.integrator == "verlet" else 2
         self.comm = comm_cls(ranks=ranks, **(comm_options or {}))
         self.nranks = self.comm.size
-        self.halo_transport = getattr(self.comm, "halo_transport", "staged")
-        if self.halo_transport == "ipc" and backend != "numba-cuda":
+        self.halo_transport = self.comm.halo_transport
+        if self.halo_transport == "auto":   # device to device where the ranks share this process
+            self.halo_transport = "ipc" if compute_cls.device_resident and self.comm.one_process else "staged"
+        if self.halo_transport == "ipc" and not compute_cls.device_resident:
             raise InputError(f"--halo-transport ipc: needs --backend numba-cuda (halos device to device), "
                              f"got --backend {backend}")
         self.balance_cfg = BalanceConfig.resolve(self.schedule.rebalance, scene.extra.get("balance"),
@@ -114,7 +116,7 @@ class Simulation:
         t0 = time.perf_counter()
         if particles is None:   # before anything of the scene's size is allocated (scene.constants is)
             from .invariants import check_memory
-            check_memory(scene, self.dtype, device_rows=hasattr(compute_cls, "sync_host"))
+            check_memory(scene, self.dtype, device_rows=compute_cls.device_resident)
         consts = scene.constants
         self.consts = consts
         blocks = None
@@ -148,10 +150,11 @@ class Simulation:
             axis, cuts, slabs = None, None, [blocks[0] if blocks else particles]
             self.axis = None
         self.contexts = []
+        ref = particles.pos.min(axis=0) if self.nranks > 1 and particles.n else None
         for r in self.comm.local_ranks:
             st = RankState(particles=slabs[r], consts=consts, dtype=self.dtype, rank=r, nranks=self.nranks,
                            axes=axis_order(self.dim, axis), cfl=phys.cfl,
-                           rho_min=phys.rho_min, rho_max=phys.rho_max)
+                           rho_min=phys.rho_min, rho_max=phys.rho_max, ref=ref)
             if axis is not None:
                 st.axis, st.cut_lo, st.cut_hi = axis, cuts[r], cuts[r + 1]
             self.compute.prepare(st)

@@ -87,6 +87,9 @@ class RankState:
     cut_lo: float = -np.inf
     cut_hi: float = np.inf
     bytes_sent: int = 0
+    # reference point of a device backend's float positions: the same on every rank of a
+    # multi-rank run (a rank's position records are valid on its neighbours); None: its own
+    ref: np.ndarray = None
     # build_cells of this step already ran (recv_displaced then merges the arrivals into
     # the sorted rows): the step it ran in, None once send_displaced changed the rows
     cells_step: int | None = None

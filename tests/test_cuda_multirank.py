@@ -97,6 +97,7 @@ def big():
 '''
 
 
+@pytest.mark.gpu
 @gpu
 @pytest.mark.parametrize("ranks", [4, 5])
 def test_gpu_many_ranks_match_one_at_a_million(ranks):

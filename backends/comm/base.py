@@ -14,7 +14,7 @@ import time
 
 from sphgraph.errors import CommError, InputError
 
-HALO_TRANSPORTS = ("staged", "ipc")
+HALO_TRANSPORTS = ("auto", "staged", "ipc")
 
 
 class CommBackend:
@@ -22,14 +22,16 @@ class CommBackend:
 
     name = "base"
     virtual_time = False   # True when task times are simulated seconds
+    one_process = False    # every rank in this process: a message may carry device buffers as they are
 
-    def __init__(self, ranks: int = 1, halo_transport: str = "staged", **options):
+    def __init__(self, ranks: int = 1, halo_transport: str = "auto", **options):
         self.size = ranks
         if halo_transport not in HALO_TRANSPORTS:
             raise InputError(f"--halo-transport: expected one of {', '.join(HALO_TRANSPORTS)}, "
                              f"got {halo_transport!r}")
         # how halos travel between device-resident ranks: through the host (MPI or the
-        # mock's copy) or device to device (CUDA IPC between processes; backends/compute/cuda_halo)
+        # mock's copy) or device to device (CUDA IPC between processes; backends/compute/cuda_halo);
+        # "auto": device to device when every rank is in this process, else through the host
         self.halo_transport = halo_transport
 
     @property

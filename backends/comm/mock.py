@@ -407,10 +407,11 @@ class MockComm(CommBackend):
     """`--comm mock --ranks N`: N ranks in this process (see module doc)."""
 
     virtual_time = True
+    one_process = True
 
     def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
                  delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None,
-                 duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="staged", **options):
+                 duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="auto", **options):
         if options:
             raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
                              "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs, "
@@ -512,9 +513,24 @@ class MockComm(CommBackend):
             eng.clock[r] = end
             rec(r, task, start, end)
 
+        def reduce_body(r, task, value):
+            t0 = time.perf_counter()
+            task.reduce[2](ctxs[r], value)
+            w = time.perf_counter() - t0
+            return w / self.rank_speed[r] if wall else self._model_seconds(ctxs[r], task, 0)
+
         def run_collective(ranks, heads, rec):
             coll = _Collective(len(ranks))
             durs, errors = {}, {}
+            if all(heads[r].reduce is not None for r in ranks):
+                # one reduction: the values of every rank reduced here, no thread a rank
+                op, value = heads[ranks[0]].reduce[0], heads[ranks[0]].reduce[1]
+                v = _reduce([value(ctxs[r]) for r in ranks], op)
+                for r in ranks:
+                    durs[r] = reduce_body(r, heads[r], v)
+                ranks_done = True
+            else:
+                ranks_done = False
 
             def go(r):
                 ep = self.endpoints[r]
@@ -526,7 +542,9 @@ class MockComm(CommBackend):
                     coll.barrier.abort()
                 finally:
                     ep.collective = None
-            if len(ranks) == 1:
+            if ranks_done:
+                pass
+            elif len(ranks) == 1:
                 go(ranks[0])
             else:
                 threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in ranks]

@@ -222,7 +222,7 @@ class _Endpoint:
 class MPIComm(CommBackend):
     """`--comm mpi`: this process is rank COMM_WORLD.rank of COMM_WORLD.size."""
 
-    def __init__(self, ranks: int | None = None, comm=None, watchdog=DEFAULT_WATCHDOG, halo_transport="staged",
+    def __init__(self, ranks: int | None = None, comm=None, watchdog=DEFAULT_WATCHDOG, halo_transport="auto",
                  **options):
         MPI = _mpi()
         self.MPI = MPI

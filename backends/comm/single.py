@@ -24,7 +24,7 @@ class _Endpoint:
 
 @register("comm", "single")
 class SingleComm(CommBackend):
-    def __init__(self, ranks: int = 1, halo_transport: str = "staged", **options):
+    def __init__(self, ranks: int = 1, halo_transport: str = "auto", **options):
         super().__init__(1, halo_transport)
 
     def endpoint(self, rank: int):

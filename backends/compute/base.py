@@ -15,6 +15,7 @@ class ComputeBackend:
 
     name = "base"
     default_precision = "float64"
+    device_resident = False   # rows live on a device between steps (halos can go device to device)
 
     def device_name(self) -> str:
         return "cpu"
@@ -43,9 +44,7 @@ class ComputeBackend:
         the owned rows. Default, for a backend without a merge: append them and build the
         cells again (correct, a whole build). numba-cpu merges them into the sorted rows."""
         if any(r is not None and r.n for r in rows):
-            sync = getattr(self, "sync_host", None)    # a device backend: host rows current first
-            if sync is not None:
-                sync(state)
+            self.sync_host(state)
             domain.add_rows(state, rows)
             self.prepare(state)
             self.build_cells(state)
@@ -106,6 +105,44 @@ class ComputeBackend:
         A device backend measures it (free memory shared by `sharing` ranks of this
         process); the option, when given, caps that too."""
         return max_particles_per_rank
+
+    # -- multi-rank rows: what leaves, what arrives, what the neighbours see ---------------
+    def take_displaced(self, state, domain) -> dict:
+        """Rows that left the slab, removed: {-1: lower, +1: upper} (`Slabs.take_displaced`)."""
+        return domain.take_displaced(state)
+
+    def add_displaced(self, state, domain, rows, built: bool) -> None:
+        """Rows that came from the neighbours. `built`: this step's build_cells already
+        sorted the owned rows (merge them in); otherwise the next build sorts them."""
+        if built:
+            self.merge_displaced(state, domain, rows)
+            return
+        domain.add_rows(state, rows)
+        self.prepare(state)
+
+    def edge(self, state, domain, direction: int, slot=None):
+        """The rows the neighbour in `direction` needs as its halo (`Slabs.edge`); `slot` (the
+        message tag) asks for a device message (`--halo-transport ipc`), which only a
+        device-resident backend gives."""
+        return domain.edge(state, direction)
+
+    def sync_host(self, state) -> None:
+        """Bring the host `state.particles` up to date (a device backend); the host rows are
+        the truth here."""
+
+    def fluid_count(self, state) -> int:
+        """Fluid rows this rank owns."""
+        return state.particles.n_fluid
+
+    def axis_extent(self, state, axis: int) -> tuple[float, float]:
+        """(min, max) of the rows' coordinate `axis` ((inf, -inf) without rows)."""
+        x = state.particles.pos[:, axis]
+        return (float(x.min()), float(x.max())) if len(x) else (np.inf, -np.inf)
+
+    def fluid_histogram(self, state, axis: int, edges) -> np.ndarray:
+        """Fluid rows per bin of coordinate `axis` (uniform `edges`, as np.histogram)."""
+        p = state.particles
+        return np.histogram(p.pos[p.kind == 0, axis], bins=edges)[0].astype(np.int64)
 
     def check(self, state, lo, hi) -> tuple[int, int] | None:
         """(row, cause) of a bad particle or None: cause 1 NaN, 2 left domain, 3 density bounds."""

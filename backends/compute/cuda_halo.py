@@ -1,32 +1,31 @@
-"""Halos device to device: `--halo-transport ipc` (issue 6 §7).
+"""Halos device to device: the `ipc` halo transport (the default of mock ranks on a GPU).
 
-Staged (the default): the sender copies its edge rows to the host, MPI carries them, and the
-receiver bins them by cell on the host and uploads them. With `ipc` the rows stay on the
-devices:
+Staged (`--halo-transport staged`): the sender copies its edge rows to the host, the comm
+carries them, the receiver bins them by cell on the host and uploads them. With `ipc` the
+rows never leave the devices and nothing is binned again:
 
-sender (`numba_cuda.edge` given a slot)  packs its edge candidate ranges (k_pack_edge) into
-    a device buffer of its own, one per message tag (direction and stage), behind a header
-    holding a generation number (k_stamp); waits for its stream; sends a `DeviceEdge`:
-    rows, cut, slot, generation and, the first time a buffer goes to a peer, the buffer's
-    CUDA IPC handle, which the peer opens once and keeps.
-receiver (`numba_cuda.prepare_halo`)     copies the rows out of the sender's buffer device to
-    device (peer to peer across GPUs), checks the generation number, cuts them
-    (k_edge_bounds: count and bounding box, one 72-byte copy to the host for the grid's
-    size), bins them (k_edge_keys, the device scan, scatter, each cell's rows by old row:
-    the order of `sphgraph.cells.counting_sort`) and gathers the halo arrays
-    (k_edge_gather). Same grid and the same rows in the same order as the staged path: the
-    same halo force sums, bit for bit.
+sender (`send_edge`)    the edge towards a neighbour is whole planes of the sender's sorted
+    cells (one fluid and one boundary row range, read once per sort: `edge_ranges`);
+    `k_halo_pack` copies their pos4 / vel4 / kind records and the planes' cell starts into
+    the sender's buffer for that message tag behind a generation number, on the task's
+    stream, and records an event there. The message (`DeviceEdge`) says where the rows are
+    and what grid they form.
+receiver (`receive_edge`)  waits for the event on its own stream (no host wait) and reads
+    the rows where they are: the halo force kernels (cuda_halo_kernels) take the buffer's
+    records and starts as their sources and the receiver's own rows within reach of that
+    cut as targets.
 
-One buffer per tag is enough: a slot is written again a step later (tags differ by stage),
-and between the two writes the sender passes a dt allreduce that the receiver reaches only
-after reading the slot (dt_local reads forces@1, which the halo force tasks accumulate, and
-they read the received halos; the receiver's copy is complete when prepare_halo returns).
-The header's generation number turns a violation into a CommError instead of wrong halos.
+The rows beyond the sender's reach that whole planes bring are farther than 2h from any
+receiver row: they add no pair (the r^2 test rejects them).
 
-Mock ranks share one process and one device: the message carries the buffer itself (CUDA
-will not open an IPC handle in the process that made it), so the same path runs in CI under
-numba's CUDA simulator. A buffer that outgrows its slot is replaced and the old one kept
-(a peer may still map it; edges are small).
+One buffer per tag is enough: a slot is written again one step later (tags differ by
+stage), and between the two writes the sender passes a dt allreduce that the receiver
+joins only after its host waited for its own halo forces (dt_local reads them).
+
+Mock ranks share one process and one device: the message carries the buffer itself and
+the event. Between processes (MPI) the buffer goes once per peer as a CUDA IPC handle; an
+event cannot cross processes, so the sender's host waits for the pack before the message
+leaves (`to_wire`), and the receiver checks the generation number with its first read.
 """
 from __future__ import annotations
 
@@ -38,28 +37,33 @@ from numba import cuda
 
 from sphgraph.errors import CommError
 
+from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 
-_WIRE = 1            # layout version of DeviceEdge.to_wire
-_HEAD = 13           # int64 words before the pickled IPC handle
+_WIRE = 2            # layout version of DeviceEdge.to_wire
+_HEAD = 20           # int64 words before the pickled IPC handle
 
 
 class DeviceEdge:
-    """An edge message of the ipc transport; once received (`receive_edge`) it is the halo
-    (`n` rows kept, `n_fluid` of them fluid, `press` its device arrays, `cells` its grid)."""
+    """An edge message of the ipc transport; once received it is the halo: `n` rows
+    (`m0` fluid first), cell grid `dims` at `origin` (cells of `size`; `ncells` per kind),
+    device views `pos4`, `vel4`, `kind`, `start` of the sender's buffer."""
 
-    def __init__(self, src, slot, version, gen, m, dim, dtype, thr, below, axis, nb,
-                 array=None, handle=None, owner=None):
+    def __init__(self, src, slot, version, gen, m0, m, nch, dims, origin, size, moved, dim, dtype, nb,
+                 array=None, handle=None, owner=None, event=None):
         self.src, self.slot, self.version, self.gen = int(src), int(slot), int(version), int(gen)
-        self.m, self.dim, self.dtype = int(m), int(dim), np.dtype(dtype)
-        self.thr, self.below, self.axis, self.nb = float(thr), bool(below), int(axis), int(nb)
+        self.m0, self.m, self.ncells = int(m0), int(m), int(nch)
+        self.dims = np.asarray(dims, np.int64)
+        self.origin = np.asarray(origin, np.float64)
+        self.size, self.moved = float(size), float(moved)
+        self.dim, self.dtype, self.nb = int(dim), np.dtype(dtype), int(nb)
         self.array = array          # the sender's buffer itself (mock ranks: one process)
         self.handle = handle        # its IPC handle (MPI ranks), sent once per buffer and peer
+        self.event = event          # recorded after the pack (one process only)
         self._owner = owner         # the sender's slot (to_wire: was the handle sent?)
-        self.n = self.m             # rows; the rows kept once received
-        self.n_fluid = None
-        self.press = None
-        self.cells = None
+        self.n = self.m
+        self.n_fluid = self.m0      # fluid rows (whole planes: a few beyond the reach)
+        self.views = None
         self._ref = None
 
     def __deepcopy__(self, memo):
@@ -68,11 +72,16 @@ class DeviceEdge:
         return copy.copy(self)
 
     def nbytes(self) -> int:
-        """Bytes of the message (the rows move device to device)."""
-        return 8 * (_HEAD + 1)
+        """Bytes of the message itself (the rows move device to device)."""
+        return 8 * _HEAD
 
-    # the wire form (backends.comm.mpi): int64 header, then the pickled handle if any
     def to_wire(self, dest: int) -> np.ndarray:
+        """The message between processes: int64 header, then the pickled handle when this
+        buffer goes to `dest` for the first time. The host waits for the pack first."""
+        if self.event is not None:
+            from .numba_cuda import COUNTERS
+            COUNTERS["host_wait"] += 1
+            self.event.synchronize()
         o = self._owner
         blob = b""
         if o is not None and dest not in o["sent"]:
@@ -80,9 +89,13 @@ class DeviceEdge:
                 o["handle"] = o["buf"].get_ipc_handle()
             blob = pickle.dumps(o["handle"])
             o["sent"].add(dest)
-        head = np.array([_WIRE, self.src, self.slot, self.version, self.gen, self.m, self.dim,
-                         self.dtype.itemsize, int(self.below), self.axis, self.nb, len(blob), 0], np.int64)
-        head[12] = np.array([self.thr], np.float64).view(np.int64)[0]
+        head = np.zeros(_HEAD, np.int64)
+        head[:12] = [_WIRE, self.src, self.slot, self.version, self.gen, self.m0, self.m, self.ncells,
+                     self.dim, self.dtype.itemsize, self.nb, len(blob)]
+        head[12:15] = self.dims
+        head[15:18] = self.origin.view(np.int64)
+        head[18] = np.array([self.size], np.float64).view(np.int64)[0]
+        head[19] = np.array([self.moved], np.float64).view(np.int64)[0]
         return np.concatenate([head.view(np.uint8), np.frombuffer(blob, np.uint8)])
 
     @classmethod
@@ -92,60 +105,117 @@ class DeviceEdge:
             raise CommError(f"--halo-transport ipc: edge message of layout {int(head[0])}, expected {_WIRE}")
         nblob = int(head[11])
         handle = pickle.loads(buf[8 * _HEAD:8 * _HEAD + nblob].tobytes()) if nblob else None
-        dtype = {4: np.float32, 8: np.float64}[int(head[7])]
-        thr = float(head[12:13].view(np.float64)[0])
-        return cls(head[1], head[2], head[3], head[4], head[5], head[6], dtype, thr, bool(head[8]),
-                   head[9], head[10], handle=handle)
+        dtype = {4: np.float32, 8: np.float64}[int(head[9])]
+        f = head[15:20].view(np.float64)
+        return cls(head[1], head[2], head[3], head[4], head[5], head[6], head[7], head[12:15], f[:3], f[3], f[4],
+                   head[8], dtype, head[10], handle=handle)
 
-    # host copies for the host-side pair count (benchmarks): from the device arrays
+    # host copies for the host-side pair count (benchmarks)
     @property
     def pos(self) -> np.ndarray:
-        if self.press is None:
+        if self.views is None or not self.m:
             return np.zeros((0, self.dim))
-        cols = [self.press["r" + ax][:self.n].copy_to_host().astype(np.float64) + self._ref[i]
-                for i, ax in enumerate("xyz"[:self.dim])]
-        return np.stack(cols, axis=1)
+        p4 = self.views["pos4"].copy_to_host().reshape(-1, 4)
+        return p4[:, :self.dim].astype(np.float64) + self._ref[:self.dim]
 
     @property
     def kind(self) -> np.ndarray:
-        if self.press is None:
+        if self.views is None or not self.m:
             return np.zeros(0, np.int8)
-        return self.press["kind"][:self.n].copy_to_host()
+        return self.views["kind"].copy_to_host()
 
 
-def edge_layout(m: int, dim: int, dtype):
-    """The slot's byte layout: generation header, float64 positions, run-type vel4
-    records, kinds (the fields of the staged path's edge copy)."""
-    from .numba_cuda import _layout
-    return _layout([("head", np.int64, 1), ("pos", np.float64, m * dim), ("v4", dtype, 4 * m),
-                    ("kind", np.int8, m)])
+def edge_layout(m: int, nch: int, dtype):
+    """The slot's byte layout: generation header (16 bytes), pos4 and vel4 records (16-byte
+    aligned: the force kernels load a record in one access), cell starts (2 nch + 1),
+    kinds: ({name: (offset, dtype, count)}, total bytes)."""
+    dt = np.dtype(dtype)
+    out, off = {}, 0
+    for name, t, cnt in (("head", np.int64, 2), ("pos4", dt, 4 * m), ("vel4", dt, 4 * m),
+                         ("start", np.int32, 2 * nch + 1), ("kind", np.int8, m)):
+        t = np.dtype(t)
+        out[name] = (off, t, int(cnt))
+        off += t.itemsize * int(cnt)
+    return out, off
 
 
-def send_edge(be, state, dv, a0, m0, a1, m, thr, below, axis, slot) -> DeviceEdge:
-    """Pack rows a0..a0+m0-1 and a1..a1+(m-m0)-1 into this rank's buffer for `slot` (the
-    message tag) and describe them; the host waits for the copy before the message goes."""
-    from . import numba_cuda as NC
-    from .numba_cuda import _split, _wait
-    k, s, A = be._k(state), be._s(state), dv.arrays
-    lay, nb = edge_layout(m, dv.dim, dv.dtype)
+def edge_ranges(be, state, dv, domain):
+    """{direction: (first plane, planes, (a0, b0, a1, b1))} of the current sort: the cell
+    planes within reach of each cut (one cell of margin for rows moved since the sort) and
+    the fluid and boundary row ranges they hold. One read from the device per sort (the
+    first edge of a step), kept for the other edge, the halo forces and the second stage."""
+    from .numba_cuda import _wait
+    got = dv.__dict__.get("edge_ranges")
+    if got is not None and got[0] == dv.sort_gen and got[1] == (domain.lo, domain.hi):
+        return got[2]
+    g = dv.grid
+    n0, n1, n2 = (int(x) for x in g["dims"])
+    ncells = int(g["ncells"])
+    plane = n0 * n1
+    planes = {}
+    if np.isfinite(domain.lo):
+        c = min(int(np.floor((domain.lo + domain.reach - g["origin"][2]) * g["inv"])) + 1, n2 - 1)
+        planes[-1] = (0, max(c + 1, 0))
+    if np.isfinite(domain.hi):
+        c = max(int(np.floor((domain.hi - domain.reach - g["origin"][2]) * g["inv"])) - 1, 0)
+        planes[1] = (min(c, n2), n2 - min(c, n2))
+    idx = []
+    for d in (-1, 1):
+        c0, np_ = planes.get(d, (0, 0))
+        idx += [c0 * plane, (c0 + np_) * plane, ncells + c0 * plane, ncells + (c0 + np_) * plane]
+    A = dv.arrays
+    if "pick8" not in A:
+        from .numba_cuda import dev_array, pinned_array
+        A["pick8"] = dev_array(8, np.int32)
+        dv.__dict__["pinned_i8"] = pinned_array(8, np.int32)
+    s = be._s(state)
+    hk = be._on(state, HK.build(dv.dtype))
+    hk.k_pick8[1, 1](A["start"], *idx, A["pick8"])
+    h = dv.__dict__["pinned_i8"]
+    A["pick8"].copy_to_host(h, stream=s)
+    _wait(s)
+    from .numba_cuda import _count
+    _count(state, "d2h_bytes", "edge", 32)
+    v = [int(x) for x in h]
+    out = {d: (planes[d][0], planes[d][1], tuple(v[4 * k:4 * k + 4])) for k, d in enumerate((-1, 1)) if d in planes}
+    dv.__dict__["edge_ranges"] = (dv.sort_gen, (domain.lo, domain.hi), out)
+    return out
+
+
+def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
+    """The edge towards `direction` packed into this rank's buffer for `slot` (the message
+    tag), an event recorded after it; no host wait."""
+    from .numba_cuda import _event, _split, dev_array
+    c0, npl, (a0, b0, a1, b1) = edge_ranges(be, state, dv, domain)[direction]
+    m0, m = b0 - a0, (b0 - a0) + (b1 - a1)
+    g = dv.grid
+    n0, n1 = int(g["dims"][0]), int(g["dims"][1])
+    nch = n0 * n1 * npl
+    lay, nb = edge_layout(m, nch, dv.dtype)
     slots = dv.__dict__.setdefault("edge_slots", {})
     e = slots.get(slot)
     if e is None or e["buf"].shape[0] < nb:
         old = e
-        e = {"buf": NC.dev_array(int(nb * 1.5) + 4096, np.uint8), "version": 0 if old is None else
+        e = {"buf": dev_array(int(nb * 1.5) + 4096, np.uint8), "version": 0 if old is None else
              old["version"] + 1, "gen": 0 if old is None else old["gen"], "sent": set(), "handle": None,
-             "retired": [] if old is None else old["retired"] + [old["buf"]]}
+             "event": _event(False), "retired": [] if old is None else old["retired"] + [old["buf"]]}
         slots[slot] = e
     e["gen"] += 1
     d = _split(e["buf"][:nb], lay)
-    k.k_stamp[1, 1](d["head"], e["gen"])
-    if m:
-        k.k_pack_edge[CK.blocks(m), CK.BLOCK](A["px"], A["py"], A["pz"], A["vel4"], A["kind"], a0, m0, a1, m,
-                                               dv.dim, d["pos"], d["v4"], d["kind"])
-    _wait(s)
+    hk = be._on(state, HK.build(dv.dtype))
+    s = be._s(state)
+    be._on(state, CK.build(dv.dtype)).k_fill[1, 1](d["head"], 1, e["gen"])     # head[0]: the generation
+    total = max(m, 2 * nch + 1)
+    hk.k_halo_pack[min(CK.blocks(total), 4096), CK.BLOCK](
+        dv.arrays["start"], c0 * n0 * n1, nch, int(g["ncells"]), dv.arrays["pos4"], dv.arrays["vel4"],
+        dv.arrays["kind"], total, d["start"], d["pos4"], d["vel4"], d["kind"])
+    e["event"].record(s if s else 0)
     state.bytes_sent += nb
-    return DeviceEdge(state.rank, slot, e["version"], e["gen"], m, dv.dim, dv.dtype, thr, below, axis, nb,
-                      array=e["buf"], owner=e)
+    origin = np.array(g["origin"], np.float64)
+    origin[2] += c0 * g["size"]
+    dims = (n0, n1, npl)
+    return DeviceEdge(state.rank, slot, e["version"], e["gen"], m0, m, nch, dims, origin, g["size"], dv.moved,
+                      dv.dim, dv.dtype, nb, array=e["buf"], owner=e, event=e["event"])
 
 
 def _peer_buffer(dv, edge):
@@ -169,78 +239,55 @@ def _peer_buffer(dv, edge):
 
 
 def receive_edge(be, state, edge) -> None:
-    """Bring a DeviceEdge's rows over, cut and bin them on the device: `edge` becomes the
-    halo, with the device arrays the halo force kernels read."""
-    from sphgraph.cells import CellGrid, reach_cells
-    from . import numba_cuda as NC
-    from .numba_cuda import _VEC, _count, _layout, _split, _wait, device_grid
+    """`edge` becomes the halo: its views on the sender's buffer, read after the pack
+    (the receiver's stream waits for the sender's event; between processes the sender
+    waited before sending, and the generation number is checked)."""
+    from .numba_cuda import _split
     dv = state.extra["dev"]
-    k, s = be._k(state), be._s(state)
-    c = state.consts
-    dim, dt, m = dv.dim, dv.dtype, edge.m
     edge._ref = dv.ref
-    if m == 0:
-        edge.n, edge.n_fluid, edge.cells, edge.press = 0, 0, None, None
+    if edge.m == 0:
+        edge.views = None
         return
-    if edge.dtype != dt or edge.dim != dim:
+    if edge.dtype != dv.dtype or edge.dim != dv.dim:
         raise CommError(f"--halo-transport ipc: rank {edge.src} sent {edge.dim}D {edge.dtype} rows to a "
-                        f"{dim}D {dt} rank")
-    lay, nb = edge_layout(m, dim, dt)
-    tag = edge.slot
-    be._copy_mark(state, "halo_d2d", True)
-    raw = dv.dev_buf(f"edge_in{tag}", nb)
-    raw.copy_to_device(_peer_buffer(dv, edge)[:nb], stream=s)     # device to device
-    d = _split(raw, lay)
-    meta = dv.arrays.get(f"edge_meta{tag}")
-    if meta is None:
-        meta = dv.arrays[f"edge_meta{tag}"] = NC.dev_array(9, np.float64)
-    k.k_edge_init[1, 1](d["head"], meta)
-    k.k_edge_bounds[min(CK.blocks(m, 256), CK.REDUCE_BLOCKS), 256](d["pos"], d["kind"], m, dim, edge.axis,
-                                                                   edge.thr, edge.below, meta)
-    hm = dv.pinned_meta
-    meta.copy_to_host(hm, stream=s)
-    _wait(s)
-    _count(state, "d2d_bytes", "halo", nb)
-    _count(state, "d2h_bytes", "halo_meta", meta.nbytes)
-    if int(hm[8]) != edge.gen:
-        raise CommError(f"--halo-transport ipc: rank {edge.src}'s edge buffer (tag {tag}) was rewritten "
-                        f"before rank {state.rank} read it: generation {int(hm[8])}, expected {edge.gen}")
-    kept = int(hm[0])
-    edge.n, edge.n_fluid = kept, int(hm[1])
-    if kept == 0:
-        edge.cells, edge.press = None, None
-        be._copy_mark(state, "halo_d2d", False)
+                        f"{dv.dim}D {dv.dtype} rank")
+    lay, nb = edge_layout(edge.m, edge.ncells, dv.dtype)
+    buf = _peer_buffer(dv, edge)[:nb]
+    s = be._s(state)
+    if edge.event is not None:
+        if s:
+            edge.event.wait(s)
+        else:
+            edge.event.wait()
+    else:
+        _check_generation(be, state, dv, edge, buf)
+    edge.views = _split(buf, lay)
+    be._log(state, "halo_views", edge.slot, edge.gen)
+
+
+def _check_generation(be, state, dv, edge, buf):
+    """Between processes: the buffer's generation number must be the message's (a buffer
+    rewritten before it was read is a CommError, not wrong halos). Its 8 bytes are copied
+    on the receive's stream and checked after the rank's next host wait (`check_generations`,
+    from dt_local): no wait of its own."""
+    from .numba_cuda import pinned_array
+    pend = dv.__dict__.setdefault("gen_pending", [])
+    pool = dv.__dict__.setdefault("gen_pinned", [])
+    while len(pool) <= len(pend):
+        pool.append(pinned_array(1, np.int64))
+    h = pool[len(pend)]
+    buf[:8].view(np.int64).copy_to_host(h, stream=be._s(state))
+    pend.append((edge.src, edge.slot, edge.gen, h))
+
+
+def check_generations(state, dv) -> None:
+    """The generation numbers copied by `_check_generation`, after a host wait that
+    followed those copies."""
+    pend = dv.__dict__.get("gen_pending")
+    if not pend:
         return
-    # the grid over the kept rows' bounding box
-    axes = np.asarray(state.axes, np.int64)
-    lo, hi, dims, o_ax, n_ax, s_ax = device_grid(hm[2:5], hm[5:8], c.cell_size, axes)
-    ncells = int(dims.prod())
-    # the halo's arrays in a pooled buffer (numba_cuda._halo_buffer: lives while tasks read it)
-    names = ["r" + ax for ax in _VEC[:dim]] + ["v" + ax for ax in _VEC[:dim]] + ["rho", "press"]
-    hl, hnb = _layout([("start", np.int64, ncells + 1), ("kind", np.int8, kept)] + [(x, dt, kept) for x in names])
-    dd = _split(be._halo_buffer(state, dv, edge, hnb), hl)
-    for ax in _VEC[dim:]:                    # 2D: one-element dummies (never read)
-        dd["r" + ax] = dd["v" + ax] = dv.arrays["az"]
-    sl, snb = _layout([("counts", np.int64, ncells + 1), ("keys", np.int32, m), ("perm", np.int32, m)])
-    sc = _split(dv.dev_buf(f"edge_sort{tag}", snb), sl)
-    counts, start = sc["counts"], dd["start"]
-    inv = 1.0 / c.cell_size
-    k.k_fill[CK.blocks(ncells + 1), CK.BLOCK](counts, ncells + 1, 0)
-    k.k_edge_keys[CK.blocks(m), CK.BLOCK](d["pos"], m, dim, edge.axis, edge.thr, edge.below, o_ax[0], o_ax[1],
-                                          o_ax[2], inv, n_ax[0], n_ax[1], n_ax[2], s_ax[0], s_ax[1], s_ax[2],
-                                          ncells, sc["keys"], counts)
-    tmp = dv.__dict__.setdefault("edge_scan", {}).setdefault(tag, [])
-    be._scan(dv, k, counts, start, ncells + 1, tmp=tmp)     # start[ncells] = rows kept
-    k.k_copy[CK.blocks(ncells + 1), CK.BLOCK](start, ncells + 1, counts)   # fill pointers
-    k.k_scatter[CK.blocks(m), CK.BLOCK](sc["keys"], m, counts, sc["perm"])
-    k.k_sort_cells[CK.blocks(ncells), CK.BLOCK](start, ncells, sc["perm"])
-    ref = np.zeros(3)
-    ref[:dim] = dv.ref
-    k.k_edge_gather[CK.blocks(kept), CK.BLOCK](d["pos"], d["v4"], d["kind"], sc["perm"], kept, dim,
-                                               float(ref[0]), float(ref[1]), float(ref[2]), dv.prm_d(state),
-                                               dd["rx"], dd["ry"], dd["rz"], dd["vx"], dd["vy"], dd["vz"],
-                                               dd["rho"], dd["press"], dd["kind"])
-    be._copy_mark(state, "halo_d2d", False)
-    reach = reach_cells(c.h, c.cell_size)
-    edge.press = dd
-    edge.cells = CellGrid(origin=lo, size=c.cell_size, dims=dims, axes=axes, start=None, reach=reach, hi=hi)
+    for src, slot, gen, h in pend:
+        if int(h[0]) != gen:
+            raise CommError(f"--halo-transport ipc: rank {src}'s edge buffer (tag {slot}) was rewritten "
+                            f"before rank {state.rank} read it: generation {int(h[0])}, expected {gen}")
+    pend.clear()

@@ -36,6 +36,7 @@ from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
 from . import cuda_halo as CH
+from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from . import cuda_launch as CL
 from . import upload_kernels as UK
@@ -83,6 +84,8 @@ class DeviceState:
         self.final = True
         self.moved = np.inf                         # bound on any row's move since the sort (inf: unsorted)
         self.vmax = None                            # (step, fluid rows' fastest speed) from dt_local
+        self.sort_gen = 0                           # sorts so far (what an edge's row ranges belong to)
+        self.halo_ranges = {}                       # halo side -> own target rows (ipc halos; reduce_forces)
 
     def __getattr__(self, name):
         d = self.__dict__
@@ -356,17 +359,18 @@ def _select_device():
         cuda.select_device(int(v) % ngpu)
 
 
-def _plain_slabs(domain) -> bool:
+def _plain_slabs(domain, *methods) -> bool:
     """The device edge/displaced paths reproduce sphgraph.domain.Slabs; other domains
     (e.g. periodic images) get current host rows and their own methods."""
     from sphgraph.domain import Slabs
     t = type(domain)
-    return t.edge is Slabs.edge and t.take_displaced is Slabs.take_displaced
+    return all(getattr(t, m) is getattr(Slabs, m) for m in (methods or ("edge", "take_displaced")))
 
 
 @register("compute", "numba-cuda")
 class NumbaCUDA(ComputeBackend):
     default_precision = "float32"
+    device_resident = True
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
@@ -508,7 +512,14 @@ class NumbaCUDA(ComputeBackend):
         if p.n:     # the rows' bounding box (the first grid), one parallel pass (upload_kernels)
             lo, hi = np.empty(dim), np.empty(dim)
             UK.column_bounds(p.pos, lo, hi)
-        ref = old.ref if old is not None else (lo.copy() if p.n else np.zeros(dim))
+        # the reference point of the float positions: the run's (every rank the same, so a
+        # rank's records are valid on its neighbours: ipc halos), else the rows' minimum
+        if old is not None:
+            ref = old.ref
+        elif getattr(state, "ref", None) is not None:
+            ref = np.asarray(state.ref, np.float64).copy()
+        else:
+            ref = lo.copy() if p.n else np.zeros(dim)
         dv = DeviceState(p.n, dim, dt, ref)
         dv.nf = p.n_fluid
         # row capacity: with several ranks, room for rows that arrive (appended on the
@@ -721,14 +732,26 @@ class NumbaCUDA(ComputeBackend):
         dv.__dict__["host_obj"] = q
         dv.host_stale = True
 
-    def add_displaced(self, state, domain, rows) -> None:
+    def add_displaced(self, state, domain, rows, built: bool) -> None:
         """Rows that came from the neighbours, appended to the device rows (only they
-        cross the bus; the next build_cells sorts them in). A rank without room, or
-        whose host rows are current anyway, goes through the host and `prepare`."""
+        cross the bus; a build_cells sorts them in: this step's again when it ran before).
+        A domain other than the plain slabs goes through its own rows."""
         rows = [r for r in rows if r is not None and r.n]
-        dv = state.extra.get("dev")
         if not rows:
             return
+        if not _plain_slabs(domain, "add_rows"):
+            super().add_displaced(state, domain, rows, built)
+            return
+        self._append_rows(state, domain, rows)
+        if built:
+            # no device merge: the appended rows are unsorted, a whole device build sorts
+            # them in (correct; the order of equal-cell rows may differ from build after recv)
+            self.build_cells(state)
+
+    def _append_rows(self, state, domain, rows) -> None:
+        """`rows` appended on the device; a rank without room, or whose host rows are
+        current anyway, goes through the host and `prepare`."""
+        dv = state.extra.get("dev")
         m = sum(r.n for r in rows)
         # through the host when the host rows are the truth (take_displaced went through
         # the host), there is no room, or an id needs more than the device's int32
@@ -788,6 +811,9 @@ class NumbaCUDA(ComputeBackend):
         if g is None or not dv.n or int(g["axes"][2]) != domain.axis or not _plain_slabs(domain):
             self.sync_host(state)
             return domain.edge(state, direction)
+        if slot is not None:
+            dv.__dict__["domain"] = domain      # the halo forces' targets: the same cut's rows
+            return CH.send_edge(self, state, dv, domain, direction, slot)
         n0, n1, n2 = (int(x) for x in g["dims"])
         ncells = int(g["ncells"])
         plane = n0 * n1
@@ -811,11 +837,6 @@ class NumbaCUDA(ComputeBackend):
         a0, b0, a1, b1 = (int(x) for x in dv.pinned_i4)
         m0, m1 = max(b0 - a0, 0), max(b1 - a1, 0)
         m = m0 + m1
-        if slot is not None:
-            out = CH.send_edge(self, state, dv, a0, m0, a1, m, thr, direction < 0, domain.axis, slot)
-            self._copy_mark(state, "edge_d2h", False)
-            _count(state, "d2h_bytes", "edge", 16)
-            return out
         pos, vel, rho, kind = [], [], [], []
         nb = 0
         if m:   # both ranges packed by one launch, one copy to the pinned staging buffer
@@ -928,6 +949,7 @@ class NumbaCUDA(ComputeBackend):
             self._permute(state, dv, k)
         else:
             k.k_fill[CK.blocks(nk + 1), CK.BLOCK](start, nk + 1, 0)
+        dv.sort_gen += 1
         dv.grid = {"origin": lo, "dims": dims, "axes": axes, "inv": inv, "reach": reach,
                    "ncells": ncells, "size": c.cell_size}
         # rows sorted along the cell rows just now (or trimming off until they are)
@@ -1106,6 +1128,9 @@ class NumbaCUDA(ComputeBackend):
             start, origin, inv, dims, axes, reach = A["start"], g["origin"], g["inv"], g["dims"], g["axes"], g["reach"]
         else:
             halo = state.halos.get(int(part[-1]))
+            if isinstance(halo, CH.DeviceEdge):
+                self._halo_forces(state, dv, part, halo)
+                return
             if halo is None or halo.cells is None:
                 dv.parts.pop(part, None)
                 return
@@ -1178,6 +1203,51 @@ class NumbaCUDA(ComputeBackend):
         dv.final = final
         self._sync()
 
+    def _halo_forces(self, state, dv, part, halo) -> None:
+        """Forces of an ipc halo (cuda_halo): the rank's own rows within reach of that cut
+        (its edge ranges towards the sender) against the halo's rows and grid, into the
+        part's buffer at those rows (k_reduce_ranged adds them there only)."""
+        side = int(part[-1])
+        if halo.views is None or not halo.m or not dv.n:
+            dv.parts.pop(part, None)
+            dv.halo_ranges.pop(side, None)
+            return
+        a0, b0, a1, b1 = CH.edge_ranges(self, state, dv, dv.__dict__["domain"])[-1 if side == 1 else 1][2]
+        m = max(dv.n, dv.cap, 1)
+        buf = dv.parts.get(part)
+        if buf is None or buf["ar"].shape[0] < m:
+            buf = {"x": dev_array(m, dv.dtype), "y": dev_array(m, dv.dtype),
+                   "z": dev_array(m if dv.dim == 3 else 1, dv.dtype),
+                   "ar": dev_array(m, dv.dtype), "ddt": dev_array(m, dv.dtype), "cancel": dev_array(m, np.int8)}
+            dv.parts[part] = buf
+        dv.halo_ranges[side] = (a0, b0, a1, b1)
+        A = dv.arrays
+        axes = dv.grid["axes"]
+        ft = dv.dtype.type
+        inv = 1.0 / halo.size
+        rel = [float(halo.origin[k]) - float(dv.ref[axes[k]]) if axes[k] >= 0 else 0.0 for k in range(3)]
+        span = max([abs(x) for x in rel] + [float(halo.dims[k]) * halo.size for k in range(3)])
+        eps = 16 * np.finfo(dv.dtype).eps * span
+        pad = np.sqrt(state.prm[P_SUPPORT2]) * (1 + 1e-6) + eps
+        tpad = 2.0 * halo.moved * (1 + 1e-6) + eps
+        tpad = TRIM_OFF if not np.isfinite(tpad) or tpad > TRIM_OFF else tpad
+        gvec = np.zeros(3)
+        gvec[:dv.dim] = state.consts.gravity
+        v = halo.views
+        args = (v["pos4"], v["vel4"], v["start"], int(halo.ncells), ft(rel[0]), ft(rel[1]), ft(rel[2]), ft(inv),
+                ft(pad), ft(tpad), int(halo.dims[0]), int(halo.dims[1]), int(halo.dims[2]),
+                int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
+                buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
+        kf = self._on(state, HK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
+                                              int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
+        FB = CK.FORCE_BLOCK
+        if b0 > a0:
+            kf.k_halo_fv[CK.blocks(b0 - a0, FB), FB](A["pos4"], A["vel4"], a0, b0, *args)
+        if b1 > a1:
+            kf.k_halo_bv[CK.blocks(b1 - a1, FB), FB](A["pos4"], A["vel4"], a1, b1, *args)
+        dv.final = False
+        self._sync()
+
     def reduce_forces(self, state, stage: int) -> None:
         if state.reduced_stage == (state.step, stage):
             return
@@ -1186,6 +1256,10 @@ class NumbaCUDA(ComputeBackend):
         if not dv.parts:      # single part written reduced by the force kernel
             return
         k = self._k(state)
+        if dv.halo_ranges and dv.n:
+            self._reduce_ranged(state, dv)
+            self._sync()
+            return
         bufs = [dv.parts[p] for p in ("interior", "halo_1", "halo_2") if p in dv.parts]
         while len(bufs) < 3:
             bufs.append(bufs[0])
@@ -1202,6 +1276,27 @@ class NumbaCUDA(ComputeBackend):
                                                  ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"])
         self._sync()
 
+    def _reduce_ranged(self, state, dv) -> None:
+        """reduce_forces with ipc halo parts, each added at its target rows only."""
+        P = dv.parts
+        inner = P["interior"]
+        flat = []
+        for side in (1, 2):
+            name = f"halo_{side}"
+            r = dv.halo_ranges.get(side) if name in P else None
+            b = P[name] if r is not None else inner
+            flat += [1 if r is not None else 0, *(r or (0, 0, 0, 0)),
+                     b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
+        gvec = np.zeros(3)
+        gvec[:dv.dim] = state.consts.gravity
+        ft = dv.dtype.type
+        A = dv.A()
+        hk = self._on(state, HK.build(dv.dtype))
+        hk.k_reduce_ranged[CK.blocks(dv.n), CK.BLOCK](
+            dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
+            inner["x"], inner["y"], inner["z"], inner["ar"], inner["ddt"], inner["cancel"], *flat,
+            A["ax"], A["ay"], A["az"], A["ar"])
+
     def dt_local(self, state) -> float:
         dv = state.extra["dev"]
         k = self._k(state)
@@ -1213,6 +1308,7 @@ class NumbaCUDA(ComputeBackend):
                 A["ax"], A["ay"], A["az"], A["vx"], A["vy"], A["vz"], A["visc"], A["kind"], dv.n, dv.dim, A["dtout"])
         A["dtout"].copy_to_host(dv.pinned_dt, stream=s)     # after the compute lane's forces and reduce
         _wait(s)
+        CH.check_generations(state, dv)          # ipc halos from other processes
         _count(state, "d2h_bytes", "dt", 24)
         a2, v2, vm = (float(x) for x in dv.pinned_dt)
         dv.vmax = (state.step, np.sqrt(v2))       # the fluid rows' fastest speed (trim slack)
@@ -1283,6 +1379,33 @@ class NumbaCUDA(ComputeBackend):
         dv.host_stale = True
         self.sync_host(state)
         return bad // 4, bad % 4
+
+    # -- load balancing: from the device rows, no download ------------------------------
+    def fluid_count(self, state) -> int:
+        return state.extra["dev"].nf
+
+    def axis_extent(self, state, axis: int) -> tuple[float, float]:
+        """From the bounding box of the last check (the rows have not moved since)."""
+        dv = state.extra["dev"]
+        return (float(dv.box[0, axis]), float(dv.box[1, axis])) if dv.n else (np.inf, -np.inf)
+
+    def fluid_histogram(self, state, axis: int, edges) -> np.ndarray:
+        """One atomic-add pass over the fluid rows (k_axis_hist), one copy to the host."""
+        dv = state.extra["dev"]
+        nb = len(edges) - 1
+        out = dv.dev_buf("hist", 8 * nb).view(np.int64)
+        k = self._k(state)
+        k.k_fill[CK.blocks(nb), CK.BLOCK](out, nb, 0)
+        if dv.nf:
+            hk = self._on(state, HK.build(dv.dtype))
+            e0, e1 = float(edges[0]), float(edges[-1])
+            hk.k_axis_hist[CK.blocks(dv.nf), CK.BLOCK](dv.arrays["p" + _VEC[axis]], dv.nf, e0, e1,
+                                                       nb / (e1 - e0), nb, out)
+        h = dv.host_buf(8 * nb).view(np.int64)
+        s = self._s(state)
+        out.copy_to_host(h, stream=s)
+        _wait(s)
+        return h.copy()
 
     # -- benchmarks --------------------------------------------------------------------
     def count_pairs(self, state) -> int:

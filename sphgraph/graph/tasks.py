@@ -117,7 +117,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
                     fn=run_dt_local)
     if kind is K.DT_ALLREDUCE:
         return Task(kind, None, reads=("dt_local",), writes=("dt",), lane=lane,
-                    fn=run_dt_allreduce, collective=True)
+                    fn=run_dt_allreduce, collective=True, reduce=("min", _dt_value, _dt_apply))
     if kind is K.INTEGRATE:
         return Task(kind, s, reads=(f"forces@{s}", "dt"), writes=("particles",), lane=lane,
                     fn=run_integrate)
@@ -151,8 +151,7 @@ def run_send_displaced(ctx, task):
     # a device-resident backend first brings the host rows up to date if any row left
     # the slab (its `take_displaced`); otherwise the host rows are current
     ctx.state.cells_step = None      # the rows change: any cells built before are stale
-    take = getattr(ctx.compute, "take_displaced", None)
-    out = take(ctx.state, ctx.domain) if take else ctx.domain.take_displaced(ctx.state)
+    out = ctx.compute.take_displaced(ctx.state, ctx.domain)
     for m, d in zip(task.sends, task.meta["dirs"]):
         ctx.comm.isend(ctx.rank + m.peer, m.tag, out[d])
 
@@ -160,25 +159,8 @@ def run_send_displaced(ctx, task):
 def run_recv_displaced(ctx, task):
     rows = [ctx.comm.recv(ctx.rank + m.peer, m.tag) for m in task.recvs]
     st = ctx.state
-    built = getattr(st, "cells_step", None) is not None and st.cells_step == st.step  # build_cells ran first
-    add = getattr(ctx.compute, "add_displaced", None)   # device backends: appended on the device
-    if add is not None and _plain_domain(ctx.domain):
-        add(st, ctx.domain, rows)
-        if built and any(r is not None and r.n for r in rows):
-            # no device merge: the appended rows are unsorted, a whole device build sorts
-            # them in (correct; the order of equal-cell rows may differ from build after recv)
-            ctx.compute.build_cells(st)
-        return
-    if built:
-        ctx.compute.merge_displaced(st, ctx.domain, rows)
-        return
-    ctx.domain.add_rows(st, rows)
-    ctx.compute.prepare(st)
-
-
-def _plain_domain(domain) -> bool:
-    from sphgraph.domain import Slabs
-    return type(domain).add_rows is Slabs.add_rows
+    built = st.cells_step is not None and st.cells_step == st.step  # build_cells ran first
+    ctx.compute.add_displaced(st, ctx.domain, rows, built)
 
 
 def run_build_cells(ctx, task):
@@ -187,15 +169,9 @@ def run_build_cells(ctx, task):
 
 
 def run_send_edges(ctx, task):
-    ipc = getattr(ctx, "halo_transport", "staged") == "ipc"
+    ipc = ctx.halo_transport == "ipc"    # the rows stay on the device, a buffer per message tag
     for m, d in zip(task.sends, task.meta["dirs"]):
-        edge = getattr(ctx.compute, "edge", None)    # device backends: rows sliced on the device
-        if edge is None:
-            payload = ctx.domain.edge(ctx.state, d)
-        elif ipc:        # the rows stay on the device, in a buffer per message tag (cuda_halo)
-            payload = edge(ctx.state, ctx.domain, d, slot=m.tag)
-        else:
-            payload = edge(ctx.state, ctx.domain, d)
+        payload = ctx.compute.edge(ctx.state, ctx.domain, d, slot=m.tag if ipc else None)
         ctx.comm.isend(ctx.rank + m.peer, m.tag, payload)
 
 
@@ -220,6 +196,14 @@ def run_dt_local(ctx, task):
 
 def run_dt_allreduce(ctx, task):
     ctx.state.dt = ctx.comm.allreduce_min(ctx.state.dt_local)
+
+
+def _dt_value(ctx):
+    return ctx.state.dt_local
+
+
+def _dt_apply(ctx, dt):
+    ctx.state.dt = dt
 
 
 def run_integrate(ctx, task):
