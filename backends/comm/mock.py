@@ -153,6 +153,7 @@ class MockEndpoint:
         self.inbox = {}       # (source, tag) -> deque of payloads the engine matched for this task
         self.outbox = []      # (dest, tag, payload) posted during this task
         self.collective = None
+        self.reduced = None   # a declared reduction's result, computed by the engine (Task.reduce)
         self.received_rows = 0
 
     def isend(self, dest, tag, payload):
@@ -185,6 +186,8 @@ class MockEndpoint:
         return self.collective
 
     def allreduce_min(self, x):
+        if self.reduced is not None:
+            return self.reduced
         return min(self._coll().exchange(self.rank, x))
 
     def allreduce(self, x, op="sum"):
@@ -513,24 +516,22 @@ class MockComm(CommBackend):
             eng.clock[r] = end
             rec(r, task, start, end)
 
-        def reduce_body(r, task, value):
-            t0 = time.perf_counter()
-            task.reduce[2](ctxs[r], value)
-            w = time.perf_counter() - t0
-            return w / self.rank_speed[r] if wall else self._model_seconds(ctxs[r], task, 0)
-
         def run_collective(ranks, heads, rec):
             coll = _Collective(len(ranks))
             durs, errors = {}, {}
-            if all(heads[r].reduce is not None for r in ranks):
-                # one reduction: the values of every rank reduced here, no thread a rank
+            reduced = all(heads[r].reduce is not None for r in ranks)
+            if reduced:
+                # one declared reduction: every rank's value reduced here, then each body runs
+                # alone (its comm call returns the result): no thread a rank, no barrier
                 op, value = heads[ranks[0]].reduce[0], heads[ranks[0]].reduce[1]
                 v = _reduce([value(ctxs[r]) for r in ranks], op)
                 for r in ranks:
-                    durs[r] = reduce_body(r, heads[r], v)
-                ranks_done = True
-            else:
-                ranks_done = False
+                    ep = self.endpoints[r]
+                    ep.reduced = v
+                    try:
+                        durs[r] = body(r, heads[r])
+                    finally:
+                        ep.reduced = None
 
             def go(r):
                 ep = self.endpoints[r]
@@ -542,7 +543,7 @@ class MockComm(CommBackend):
                     coll.barrier.abort()
                 finally:
                     ep.collective = None
-            if ranks_done:
+            if reduced:
                 pass
             elif len(ranks) == 1:
                 go(ranks[0])

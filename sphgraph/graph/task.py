@@ -32,8 +32,9 @@ class Task:
     sends: tuple = ()                # Message, posted without waiting
     recvs: tuple = ()                # Message, the task waits for each
     collective: bool = False         # joined by every rank (dt allreduce)
-    # a collective that is one reduction: (op, value(ctx), apply(ctx, result)); fn does the
-    # same through ctx.comm. A comm that holds every rank (mock) reduces the values itself
+    # a collective that is one reduction: (op, value(ctx)), the value fn hands to ctx.comm.
+    # A comm that holds every rank (mock) reduces the values first, and fn's call returns
+    # the result without waiting for the other ranks
     reduce: tuple | None = None
     meta: dict = field(default_factory=dict)
 

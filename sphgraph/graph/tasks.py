@@ -117,7 +117,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
                     fn=run_dt_local)
     if kind is K.DT_ALLREDUCE:
         return Task(kind, None, reads=("dt_local",), writes=("dt",), lane=lane,
-                    fn=run_dt_allreduce, collective=True, reduce=("min", _dt_value, _dt_apply))
+                    fn=run_dt_allreduce, collective=True, reduce=("min", _dt_value))
     if kind is K.INTEGRATE:
         return Task(kind, s, reads=(f"forces@{s}", "dt"), writes=("particles",), lane=lane,
                     fn=run_integrate)
@@ -200,10 +200,6 @@ def run_dt_allreduce(ctx, task):
 
 def _dt_value(ctx):
     return ctx.state.dt_local
-
-
-def _dt_apply(ctx, dt):
-    ctx.state.dt = dt
 
 
 def run_integrate(ctx, task):
