@@ -5,7 +5,8 @@
     python benchmarks/kernel_ab.py examples/dambreak2d.toml 0.01 600
 
 Runs the scene NSTEPS steps, then calls both `forces` on the same arrays 15 x 5 times,
-alternating, and prints the median time of each and the largest output difference.
+alternating, and prints the median time of each and whether their outputs are identical
+(the largest difference of each output otherwise; exit status 1 then).
 """
 import sys, time, numpy as np
 sys.path.insert(0, "/tmp/ab")
@@ -22,8 +23,11 @@ args = (p.pos, p.vel, p.rho, st.press, p.kind, p.pos, p.vel, p.rho, st.press, p.
 outs = {}
 for K in (kern_old, kern_new):
     K.forces(*args); outs[K.__name__] = [a.copy() for a in (buf.ace, buf.ar, buf.ddt, buf.visc)]
-for a, b in zip(*outs.values()):
-    d = np.abs(a.astype(float) - b.astype(float)).max(); print("maxdiff", d, np.abs(a).max()) if d else None
+diffs = {}
+for name, a, b in zip(("ace", "ar", "ddt", "visc"), *outs.values()):
+    if not np.array_equal(a, b):
+        diffs[name] = float(np.abs(a.astype(float) - b.astype(float)).max())
+        print(f"{name}: largest difference {diffs[name]:.3e} (largest value {np.abs(a).max():.3e})")
 t = {"kern_old": [], "kern_new": []}
 for rep in range(15):
     for K in (kern_old, kern_new):
@@ -32,4 +36,6 @@ for rep in range(15):
             K.forces(*args)
         t[K.__name__].append((time.perf_counter() - t0) / 5)
 o, n = np.median(t["kern_old"]), np.median(t["kern_new"])
-print(f"{scene_file.split('/')[-1]} dp {dp} N {p.n}: old {o*1e3:.3f} ms new {n*1e3:.3f} ms new/old {n/o:.3f} (identical outputs)")
+same = "identical outputs" if not diffs else "outputs differ: " + ", ".join(diffs)
+print(f"{scene_file.split('/')[-1]} dp {dp} N {p.n}: old {o*1e3:.3f} ms new {n*1e3:.3f} ms new/old {n/o:.3f} ({same})")
+sys.exit(1 if diffs else 0)
