@@ -7,6 +7,12 @@ anything else -> 3 (internal error: short message, traceback to a log file)
 """
 
 
+# the causes of a numerical failure, by the code that `ComputeBackend.check` and the
+# invariants return (and that /exclusions stores): the solver's messages name them
+CAUSES = {1: "NaN in position or density", 2: "particle left the domain",
+          3: "density outside the bounds [rho_min, rho_max]", 4: "NaN in velocity"}
+
+
 class SphgraphError(Exception):
     exit_code = 3
 

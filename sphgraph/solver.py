@@ -16,7 +16,7 @@ from . import __version__
 from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
-from .errors import CommError, InputError, NumericalError, SphgraphError
+from .errors import CAUSES, CommError, InputError, NumericalError, SphgraphError
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -24,8 +24,6 @@ from .scheduler import RankContext, Scheduler
 from .state import RankState
 
 PRECISIONS = {"float32": np.float32, "float64": np.float64}
-CAUSES = {1: "NaN in position or density", 2: "particle left the domain",
-          3: "density outside the bounds [rho_min, rho_max]", 4: "NaN in velocity"}
 
 
 @dataclass

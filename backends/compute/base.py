@@ -145,7 +145,8 @@ class ComputeBackend:
         return np.histogram(p.pos[p.kind == 0, axis], bins=edges)[0].astype(np.int64)
 
     def check(self, state, lo, hi) -> tuple[int, int] | None:
-        """(row, cause) of a bad particle or None: cause 1 NaN, 2 left domain, 3 density bounds."""
+        """(row, cause) of a bad particle or None; the causes are `sphgraph.errors.CAUSES`' codes
+        1 (NaN in position or density), 2 (left the domain), 3 (density bounds)."""
         raise NotImplementedError
 
 
@@ -153,10 +154,6 @@ class ComputeBackend:
 # A backend supports shifting when it has shift_part(state, part, mode),
 # shift_displacement(state, coefumagn, tfs, coeftfs, maxdist) and shift_apply(state).
 SHIFT_PARTS = ("interior", "halo_1", "halo_2", "halo_3")
-
-CAUSES = {1: "NaN in position or density", 2: "particle left the domain",
-          3: "density outside [rho_min, rho_max]"}
-
 
 def dt_from_terms(a2max: float, v2max: float, viscmax: float, h: float, c0: float, cfl: float) -> float:
     """Variable dt (DualSPHysics JSphCpu::DtVariable, v5):
