@@ -16,7 +16,7 @@ drives predict mode from outside, frame by frame:
      ~24 checks every 50 steps); `time` measures each rank's force seconds from the
      predicted task times (forces_interior + forces_halo_*), as the balancer does from real
      task times;
-  3. the step time of each frame is `costmodel.predict(...)` with those cuts (the real
+  3. the step time of each frame is `perfmodel.predict(...)` with those cuts (the real
      production programs, messages and dt allreduce through the engine, modelled costs).
 
 Policies compared: none (the initial equal-fluid cuts kept), particles, time. The virtual
@@ -113,7 +113,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     from sphgraph import Scene
-    from sphgraph.backends.comm.costmodel import CostModel, pairs_per_particle, predict
+    from sphgraph.perfmodel import CostModel, pairs_per_particle, predict
     from sphgraph.balance import BalanceConfig, imbalance_vs, loads, solve_cuts, target_loads
     from sphgraph.config import derive
     from sphgraph.io import list_frames, read_frame
@@ -127,7 +127,7 @@ def main(argv=None):
     consts = derive(full.physics, 3, a.dp, coarse.hswl)
     h = consts.h
     k = pairs_per_particle(consts, 3, a.dp)
-    reach = 2.2 * h          # as costmodel.decomposition_shape counts edges
+    reach = 2.2 * h          # as perfmodel.decomposition_shape counts edges
     min_width = 6.0 * h
     ratio = a.coarse_dp / a.dp
     frames = list_frames(a.run)[:: a.every]

@@ -73,7 +73,7 @@ def main(argv=None):
     }
     if not a.no_predict:
         from sphgraph import Scene
-        from sphgraph.backends.comm.costmodel import predict
+        from sphgraph.perfmodel import predict
         sc = Scene.from_toml(a.scene).with_overrides(dp=a.dp)
         p1, pn = predict(sc, 1, steps=20), predict(sc, n, steps=20)
         out["predicted"] = {"steps_per_s_1r": p1.steps_per_s, f"steps_per_s_{n}r": pn.steps_per_s,

@@ -8,7 +8,7 @@ Two subcommands:
   fit-mpi   runs the 2D/3D dam breaks under `mpiexec -n 2 ... --comm mpi` (1 numba thread per
             rank), gathers every rank's task times, and fits (a, b, c) of the kinds a single-rank
             run cannot see: send_edges, recv_halo_1/2, forces_halo_1/2, send_displaced,
-            recv_displaced (the same features `costmodel.predict` uses). The other kinds keep the
+            recv_displaced (the same features `perfmodel.predict` uses). The other kinds keep the
             shipped single-rank fit. Then, in the same command, it measures 1-rank x 1-thread and
             2-rank x 1-thread steps/s with `sphgraph bench` on validation cases and predicts them
             with the old and the new costs. Writes the merged costs (TOML) and a JSON report.
@@ -58,7 +58,7 @@ PAPER = {"2": 0.98, "4": 0.92, "14": 0.81}
 def worker(scene, dp, steps, warmup):
     """One rank of a 2-rank run: per-rank medians of task seconds and the features of each kind."""
     from sphgraph import Scene, Simulation
-    from sphgraph.backends.comm.costmodel import pairs_per_particle
+    from sphgraph.perfmodel import pairs_per_particle
     sim = Simulation(Scene.from_toml(scene), comm="mpi", dp=dp)
     for _ in range(warmup):
         sim.step()
@@ -83,8 +83,8 @@ def worker(scene, dp, steps, warmup):
 
 
 def samples_from_ranks(allr):
-    """(label, particles, pairs, seconds) per rank and comm kind, features as costmodel.predict."""
-    from sphgraph.backends.comm.costmodel import task_features
+    """(label, particles, pairs, seconds) per rank and comm kind, features as perfmodel.predict."""
+    from sphgraph.perfmodel import task_features
     n = len(allr)
     by = {r["rank"]: r for r in allr}
     out = []
@@ -126,12 +126,13 @@ def bench(scene, dp, steps, ranks, repeat):
 
 def cmd_fit_mpi(a):
     from sphgraph import Scene
-    from sphgraph.backends.comm.costmodel import CostModel, fit_costs, predict
+    from sphgraph.perfmodel import CostModel, fit_costs, predict
     t0 = time.time()
     load_before = os.getloadavg()
     if a.refit_single:   # the single-rank kinds refitted now, under the same load as the 2-rank runs
         single = os.path.abspath(a.out_costs or "costs_fit.toml") + ".single.toml"
-        mpiexec(["-m", "sphgraph.backends.comm.costmodel", "fit", EXAMPLES, single], ranks=1, timeout=900)
+        mpiexec([os.path.join(os.path.dirname(os.path.abspath(__file__)), "fit_costs.py"), EXAMPLES, single], ranks=1,
+                timeout=900)
         a.base_costs = single
     samples, raw = [], []
     for f, dp in FIT_CASES:
@@ -193,7 +194,7 @@ def cmd_fit_mpi(a):
 def base_note(spec):
     from importlib import resources
     if spec is None:
-        text = resources.files("sphgraph.backends.comm").joinpath("costs_default.toml").read_text()
+        text = resources.files("sphgraph").joinpath("costs_default.toml").read_text()
     else:
         text = open(spec).read()
     lines = [ln[2:] for ln in text.splitlines() if ln.startswith("# ")]
@@ -212,7 +213,7 @@ def machine():
 
 def cmd_curve(a):
     from sphgraph import Scene
-    from sphgraph.backends.comm.costmodel import CostModel, decomposition_shape, predict
+    from sphgraph.perfmodel import CostModel, decomposition_shape, predict
     costs = CostModel.load(a.costs)
     sc = Scene.from_toml(os.path.join(EXAMPLES, "yeh_petroff.toml")).with_overrides(dp=a.dp)
     from sphgraph.domain import choose_axis
@@ -304,7 +305,7 @@ def main(argv=None):
     f.add_argument("--base-costs", default=None, help="single-rank costs to extend (default: shipped)")
     f.add_argument("--out-costs", default=None)
     f.add_argument("--refit-single", action="store_true",
-                   help="refit the single-rank kinds first (costmodel fit, 1 thread) in the same command")
+                   help="refit the single-rank kinds first (benchmarks/fit_costs.py, 1 thread) in the same command")
     f.add_argument("--keep-single", action="store_true")
     f.add_argument("--json", default=None)
     c = sub.add_parser("curve")

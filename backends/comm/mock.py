@@ -56,9 +56,10 @@ from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.errors import SphgraphError as InternalError
 from sphgraph.registry import register
 
+from sphgraph.perfmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
+                                pairs_per_particle, step_pricing, task_features)
+
 from .base import CommBackend, SeqCheck, where
-from .costmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
-                        pairs_per_particle, task_features)
 
 REORDER_WINDOW = 1.0e-3   # s of random extra delay when reorder=True and no larger delay is set
 COLLECTIVE_TIMEOUT = 300.0
@@ -577,40 +578,24 @@ class MockComm(CommBackend):
 
     # -- predict mode inside a Simulation: real states and programs, no bodies ----------
     def _predict_step(self, jobs, record):
+        """The programs through the engine with perfmodel.step_pricing's costs, from each
+        rank's rows and its edge rows towards each neighbour as the states hold them now."""
         ctxs = {ctx.rank: ctx for ctx, _ in jobs}
         programs = {ctx.rank: prog for ctx, prog in jobs}
         self.engine.step = _step_of(jobs)
-
-        def edge_rows(r, d):
-            ctx = ctxs[r]
-            dom = ctx.domain
-            x = ctx.state.particles.pos[:, dom.axis]
-            return int(np.count_nonzero(x < dom.lo + dom.reach) if d < 0 else
-                       np.count_nonzero(x >= dom.hi - dom.reach))
-
-        dim = next(iter(ctxs.values())).state.particles.dim
-        from .costmodel import HALO_ROW_BYTES, ROW_BYTES
-
-        def cost(r, task):
-            lab = task.label
-            moved = 0
-            if lab == "send_edges":
-                moved = sum(edge_rows(r, m.peer) for m in task.sends)
-            elif lab in ("recv_halo_1", "forces_halo_1"):
-                moved = edge_rows(r - 1, 1)
-            elif lab in ("recv_halo_2", "forces_halo_2"):
-                moved = edge_rows(r + 1, -1)
-            ctx = ctxs[r]
-            p, q = task_features(lab, ctx.state.particles.n, moved, moved, self._pairs_k(ctx))
-            return self.costs.seconds(lab, p, q, self.rank_speed[r])
-
-        def message_bytes(r, task, m):
-            if task.label == "send_edges":
-                return edge_rows(r, m.peer) * HALO_ROW_BYTES[dim]
-            return ROW_BYTES[dim]
-
+        rows, lo, hi = [0] * self.size, [0] * self.size, [0] * self.size
+        for r, ctx in ctxs.items():
+            dom, p = ctx.domain, ctx.state.particles
+            rows[r] = p.n
+            if dom is None:      # one rank: no edges
+                continue
+            x = p.pos[:, dom.axis]
+            lo[r] = int(np.count_nonzero(x < dom.lo + dom.reach)) if r > 0 else 0
+            hi[r] = int(np.count_nonzero(x >= dom.hi - dom.reach)) if r < self.size - 1 else 0
+        first = next(iter(ctxs.values()))
+        cost, message_bytes = step_pricing(self.costs, rows, lo, hi, self._pairs_k(first),
+                                           first.state.particles.dim, self.rank_speed)
         self.engine.run_modelled(programs, cost, message_bytes, record)
-
 
 def _step_of(jobs) -> int | None:
     """The step being run, 1-based as in the solver's messages (None for bare contexts)."""

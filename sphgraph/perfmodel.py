@@ -1,4 +1,4 @@
-"""Cost model of the mock MPI engine, and its predict mode (DESIGN.md §4).
+"""The performance model of multi-rank runs and its one predictor (DESIGN.md §4).
 
 A task's modelled duration is
 
@@ -14,15 +14,23 @@ prediction, so the fitted coefficients absorb its bias.
 Messages: latency + bytes / bandwidth; the dt allreduce costs
 2 * ceil(log2 N) * latency after the last rank arrives.
 
+Displaced rows (rows crossing a cut) are priced as `displaced_fraction` of the sender's
+edge rows towards that neighbour, in the message's bytes and in recv_displaced's rows:
+no kernel runs in a prediction, so the rows that would cross are unknown, and the
+paper's measure is a fraction of the halo (about 1000x less data), which grows with the
+scene as the edge does; a fixed count would not.
+
 recv_displaced issued after build_cells (production) also merges the arrivals into the
 sorted rows and cells: that work is part of recv_displaced's fitted cost (its fit on
 2-rank runs measures the task as the schedule runs it), not a term of its own, so the
 same coefficients serve both orders and fitted files load unchanged. What the order
 changes in prediction is the wait: the message travels during build_cells.
 
-`fit_costs` fits (a, b, c) by least squares on measured single-rank runs
-(`sphgraph.run(...).timing`); `predict` runs the real multi-rank programs of a
-schedule through the mock engine with these costs and no kernels.
+`fit_costs` fits (a, b, c) by least squares on samples of measured single-rank runs
+(`samples_from_timing`; benchmarks/fit_costs.py runs them). `step_pricing` is the one
+pricing of a step's tasks and messages: `predict` (a scene's decomposition estimated,
+no particles on ranks) and the mock comm's predict mode (the real rank states) both
+use it, and run the real multi-rank programs of a schedule through the mock engine.
 """
 from __future__ import annotations
 
@@ -35,6 +43,7 @@ import numpy as np
 
 DEFAULT_LATENCY = 2.0e-6        # s, shared-memory MPI on one host
 DEFAULT_BANDWIDTH = 5.0e9       # bytes/s
+DISPLACED_FRACTION = 1e-3       # displaced rows per edge row and step (module doc)
 HALO_ROW_BYTES = {2: 2 * 8 + 2 * 8 + 8 + 1, 3: 3 * 8 + 3 * 8 + 8 + 1}  # pos, vel, rho, kind (float64)
 ROW_BYTES = {2: 8 + 1 + 2 * 8 * 3 + 2 * 8, 3: 8 + 1 + 3 * 8 * 3 + 2 * 8}  # a whole Particles row
 
@@ -66,7 +75,7 @@ class CostModel:
         if isinstance(spec, CostModel):
             return spec
         if spec is None:
-            text = resources.files("sphgraph.backends.comm").joinpath("costs_default.toml").read_text()
+            text = resources.files("sphgraph").joinpath("costs_default.toml").read_text()
             return cls._from_toml(tomllib.loads(text), "costs_default.toml")
         if isinstance(spec, dict):
             if "costs" in spec:
@@ -182,20 +191,36 @@ def fit_costs(samples, labels=None) -> CostModel:
     return CostModel(coeffs, err, "<fit>")
 
 
-def measure_runs(cases, steps: int = 30, backend: str = "numba-cpu") -> list:
-    """Run each (scene, dp) case on one rank for `steps` steps; samples for `fit_costs`."""
-    from sphgraph import Scene, Simulation
-    from sphgraph.solver import run as _run  # noqa: F401  (the API users fit from)
-    samples = []
-    for scene, dp in cases:
-        sc = scene if isinstance(scene, Scene) else Scene.from_toml(scene)
-        sim = Simulation(sc, backend=backend, dp=dp)
-        for _ in range(steps):
-            sim.step()
-        n = sim.contexts[0].state.particles.n
-        k = pairs_per_particle(sim.consts, sim.dim, sim.scene.dp)
-        samples += samples_from_timing(sim.scheduler.times, n, k, first_step=2)
-    return samples
+def step_pricing(model: CostModel, rows, lo_edge, hi_edge, k: float, dim: int, speed,
+                 displaced_fraction: float = DISPLACED_FRACTION):
+    """(cost, message_bytes) of one step for the mock engine's `run_modelled`: `cost(rank,
+    task)` seconds and `message_bytes(rank, task, msg)` of a send, from each rank's rows,
+    its edge rows towards the lower and the upper neighbour (0 at an end), the pairs per
+    particle `k` and the ranks' speeds. Displaced rows: see the module doc."""
+    def edge_rows(r, d):
+        return lo_edge[r] if d < 0 else hi_edge[r]
+
+    def cost(rank, task):
+        lab = task.label
+        if lab == "send_edges":
+            moved = sum(edge_rows(rank, m.peer) for m in task.sends)
+        elif lab in ("recv_halo_1", "forces_halo_1"):
+            moved = hi_edge[rank - 1]
+        elif lab in ("recv_halo_2", "forces_halo_2"):
+            moved = lo_edge[rank + 1]
+        elif lab == "recv_displaced":
+            moved = sum(displaced_fraction * edge_rows(rank + m.peer, -m.peer) for m in task.recvs)
+        else:
+            moved = 0
+        p, q = task_features(lab, rows[rank], moved, moved, k)
+        return model.seconds(lab, p, q, speed[rank])
+
+    def message_bytes(rank, task, m):
+        if task.label == "send_edges":
+            return int(edge_rows(rank, m.peer) * HALO_ROW_BYTES[dim])
+        return int(displaced_fraction * edge_rows(rank, m.peer) * ROW_BYTES[dim])
+
+    return cost, message_bytes
 
 
 # --------------------------------------------------------------------------- prediction
@@ -220,8 +245,8 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
     `max_build` particles; counts then scale by (dp_c / dp)^dim), split with the
     solver's `equal_cuts`, and each rank's edge rows counted within 2.2h of its cuts.
     """
-    from sphgraph.domain import choose_axis, equal_cuts
-    from sphgraph.particles import FLUID
+    from .domain import choose_axis, equal_cuts
+    from .particles import FLUID
     dim = scene.dim
     # fluid fills volumes (~dp^-dim), boundaries are single layers on surfaces (~dp^-(dim-1));
     # count on a 4x coarser lattice first: counting 16 M lattice points is itself slow
@@ -236,7 +261,7 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
     n_full = float(wts.sum())
     # the full-resolution h (cuts and reach in metres); hswl from the coarse build (only c0
     # depends on it), since the scene's own hswl would enumerate the full lattice
-    from sphgraph.config import derive
+    from .config import derive
     consts = derive(scene.physics, dim, scene.dp, sc.hswl)
     ax = choose_axis(axis or scene.decomposition_axis, p, consts.gravity)
     cuts = equal_cuts(p, ax, ranks, consts.h, weights)
@@ -257,17 +282,19 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
 
 def predict(scene, ranks: int, schedule="production", steps: int = 10, costs=None, rank_speed=None,
             latency: float = DEFAULT_LATENCY, bandwidth: float = DEFAULT_BANDWIDTH,
-            displaced_fraction: float = 1e-3, shape=None) -> Prediction:
+            displaced_fraction: float = DISPLACED_FRACTION, shape=None) -> Prediction:
     """Steps/s and per-task virtual times of `scene` on `ranks` ranks, no kernels run.
 
     The real programs of `schedule` (the same expansion the scheduler runs), the
     real messages between them and the dt allreduce go through the mock engine;
     durations come from `costs` (a CostModel or spec for `CostModel.load`; default the
-    shipped fit). `displaced_fraction` of the edge rows migrate per step.
+    shipped fit) priced by `step_pricing`. `displaced_fraction` of the edge rows migrate
+    per step.
     """
-    from sphgraph.schedule import Schedule
-    from sphgraph.scene import Scene
-    from .mock import Engine
+    from .registry import get
+    from .scene import Scene
+    from .schedule import Schedule
+    from .scheduler import TaskTimes
 
     if not isinstance(scene, Scene):
         scene = Scene.from_toml(scene)
@@ -280,35 +307,11 @@ def predict(scene, ranks: int, schedule="production", steps: int = 10, costs=Non
     if len(speed) != ranks:
         raise ValueError(f"rank_speed: expected {ranks} values, got {len(speed)}")
     programs = {r: sched.program(r, ranks, stages) for r in range(ranks)}
-    dim, k = shape["dim"], shape["k"]
-    rows, lo, hi = shape["rows"], shape["lo_edge"], shape["hi_edge"]
-
-    def edge_rows(r, d):
-        return lo[r] if d < 0 else hi[r]
-
-    def cost(rank, task):
-        lab = task.label
-        if lab == "send_edges":
-            moved = sum(edge_rows(rank, m.peer) for m in task.sends)
-        elif lab in ("recv_halo_1", "forces_halo_1"):
-            moved = hi[rank - 1]
-        elif lab in ("recv_halo_2", "forces_halo_2"):
-            moved = lo[rank + 1]
-        elif lab == "recv_displaced":
-            moved = sum(displaced_fraction * edge_rows(rank + m.peer, -m.peer) for m in task.recvs)
-        else:
-            moved = 0
-        p, q = task_features(lab, rows[rank], moved, moved, k)
-        return model.seconds(lab, p, q, speed[rank])
-
-    def message_bytes(rank, task, m):
-        if task.label == "send_edges":
-            return int(edge_rows(rank, m.peer) * HALO_ROW_BYTES[dim])
-        return int(displaced_fraction * edge_rows(rank, m.peer) * ROW_BYTES[dim])
-
-    from sphgraph.scheduler import TaskTimes
+    rows = shape["rows"]
+    cost, message_bytes = step_pricing(model, rows, shape["lo_edge"], shape["hi_edge"], shape["k"],
+                                       shape["dim"], speed, displaced_fraction)
     times = TaskTimes()
-    eng = Engine(ranks, latency=latency, bandwidth=bandwidth)
+    eng = get("comm", "mock")(ranks=ranks, latency=latency, bandwidth=bandwidth).engine
     for s in range(steps):
         def rec(rank, task, a, b, _s=s):
             times.rank.append(rank)
@@ -337,40 +340,3 @@ def efficiency_curve(scene, ranks_list, **kw) -> dict:
     """E(N) = (steps/s on N / N) / (steps/s on 1), predicted, for each N in `ranks_list`."""
     base = predict(scene, 1, **kw).steps_per_s
     return {n: predict(scene, n, **kw).steps_per_s / n / base for n in ranks_list}
-
-
-FIT_CASES = [("dambreak2d.toml", 0.04), ("dambreak2d.toml", 0.02), ("dambreak2d.toml", 0.01),
-             ("dambreak2d.toml", 0.007), ("dambreak3d.toml", 0.04), ("dambreak3d.toml", 0.03),
-             ("dambreak3d.toml", 0.02), ("dambreak3d.toml", 0.015)]
-
-
-def main(argv=None):
-    """`python -m sphgraph.backends.comm.costmodel fit EXAMPLES_DIR [OUT.toml]`: refit the costs."""
-    import os
-    import sys
-    import numba
-    argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] != "fit":
-        print(main.__doc__)
-        return 2
-    ex = argv[1] if len(argv) > 1 else "examples"
-    out = argv[2] if len(argv) > 2 else None
-    cases = [(os.path.join(ex, f), dp) for f, dp in FIT_CASES]
-    samples = measure_runs(cases, steps=int(os.environ.get("FIT_STEPS", "25")))
-    m = fit_costs(samples)
-    note = (f"Cost model fitted by `python -m sphgraph.backends.comm.costmodel fit` on single-rank\n"
-            f"numba-cpu runs ({numba.get_num_threads()} threads) of the 2D/3D dam breaks, "
-            f"{min(s[1] for s in samples):.0f}..{max(s[1] for s in samples):.0f} particles.\n"
-            "forces_halo_* borrow forces_interior's coefficients; unlisted kinds cost 1 us.")
-    text = m.to_toml(note)
-    if out:
-        with open(out, "w") as f:
-            f.write(text)
-    print(text)
-    for lab, p, q, s in sorted(samples):
-        print(f"# {lab:16s} n={p:9.0f} pairs={q:11.0f} measured={s:.3e} model={m.seconds(lab, p, q):.3e}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
