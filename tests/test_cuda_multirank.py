@@ -67,6 +67,21 @@ SCRIPT = SCENES + textwrap.dedent('''
                 "ranks_sending": moved, "time": [ref.time, g.time]}
 ''')
 
+COSTS = SCRIPT + textwrap.dedent('''
+    from sphgraph.backends.compute import numba_cuda as NC
+
+    def costs(ranks, steps, warm=2):
+        """Device allocations and host waits per rank-step after `warm` steps (mock, ipc)."""
+        sc = scene(2, "symplectic")
+        g = Simulation(sc, backend="numba-cuda", precision="float64", comm="mock", ranks=ranks)
+        for _ in range(warm):
+            g.step()
+        c0 = dict(NC.COUNTERS)
+        for _ in range(steps):
+            g.step()
+        return {k: (NC.COUNTERS[k] - c0[k]) / (steps * ranks) for k in c0} | {"transport": g.halo_transport}
+''')
+
 RUNS = [(4, "symplectic", 3, False), (5, "verlet", 3, False), (4, "verlet", 2, True)]
 
 
@@ -128,3 +143,14 @@ def test_gpu_many_ranks_match_one_at_a_million(ranks):
     assert r["n"] >= 1_000_000
     assert r["same_ids"] and r["unique"], r
     assert r["pos"] < 1e-9, r
+
+
+def test_simulator_no_allocation_and_few_host_waits_a_step():
+    """After step 2, a step of 2 mock ranks allocates nothing on the device or pinned host and
+    waits for the device at most 4 times a rank-step: once for dt, once for the check (which
+    also counts the next sort's edge bounds: the edges' row ranges stay on the device), twice
+    more where rows leave (their count, their rows)."""
+    r = _run(COSTS + "\nprint(json.dumps(costs(2, 2)))", sim=True, timeout=600)
+    assert r["transport"] == "ipc", r
+    assert r["device_alloc"] == 0 and r["pinned_alloc"] == 0, r
+    assert 2 <= r["host_wait"] <= 4, r

@@ -45,9 +45,10 @@ _HEAD = 20           # int64 words before the pickled IPC handle
 
 
 class DeviceEdge:
-    """An edge message of the ipc transport; once received it is the halo: `n` rows
-    (`m0` fluid first), cell grid `dims` at `origin` (cells of `size`; `ncells` per kind),
-    device views `pos4`, `vel4`, `kind`, `start` of the sender's buffer."""
+    """An edge message of the ipc transport; once received it is the halo: at most `m`
+    rows (`m0` of them fluid at most: bounds; the cell starts hold the counts), cell grid
+    `dims` at `origin` (cells of `size`; `ncells` per kind), device views `pos4`, `vel4`,
+    `kind`, `start` of the sender's buffer."""
 
     def __init__(self, src, slot, version, gen, m0, m, nch, dims, origin, size, moved, dim, dtype, nb,
                  array=None, handle=None, owner=None, event=None):
@@ -111,18 +112,24 @@ class DeviceEdge:
                    head[8], dtype, head[10], handle=handle)
 
     # host copies for the host-side pair count (benchmarks)
+    def rows(self) -> int:
+        """The true row count (the last cell start; a device read)."""
+        if self.views is None or not self.m:
+            return 0
+        return int(self.views["start"][2 * self.ncells:2 * self.ncells + 1].copy_to_host()[0])
+
     @property
     def pos(self) -> np.ndarray:
-        if self.views is None or not self.m:
+        m = self.rows()
+        if not m:
             return np.zeros((0, self.dim))
-        p4 = self.views["pos4"].copy_to_host().reshape(-1, 4)
+        p4 = self.views["pos4"][:4 * m].copy_to_host().reshape(-1, 4)
         return p4[:, :self.dim].astype(np.float64) + self._ref[:self.dim]
 
     @property
     def kind(self) -> np.ndarray:
-        if self.views is None or not self.m:
-            return np.zeros(0, np.int8)
-        return self.views["kind"].copy_to_host()
+        m = self.rows()
+        return self.views["kind"][:m].copy_to_host() if m else np.zeros(0, np.int8)
 
 
 def edge_layout(m: int, nch: int, dtype):
@@ -140,11 +147,16 @@ def edge_layout(m: int, nch: int, dtype):
 
 
 def edge_ranges(be, state, dv, domain):
-    """{direction: (first plane, planes, (a0, b0, a1, b1))} of the current sort: the cell
-    planes within reach of each cut (one cell of margin for rows moved since the sort) and
-    the fluid and boundary row ranges they hold. One read from the device per sort (the
-    first edge of a step), kept for the other edge, the halo forces and the second stage."""
-    from .numba_cuda import _wait
+    """{direction: (first plane, planes, fluid rows, boundary rows)} of the current sort:
+    the cell planes within reach of each cut (one cell of margin for rows moved since the
+    sort) and bounds on the fluid and boundary rows they hold. The exact row ranges
+    (a0, b0, a1, b1 per direction) go into the device array `pick8` (k_pick8), where the
+    pack, the halo forces and the reduction read them: the host needs only the bounds,
+    which the last check counted (`band_counts`, plus rows that arrived since), so no
+    wait. Without them (the first sort, moved cuts) the ranges come to the host once
+    (one wait) and are their own bounds. Kept per sort for the other edge, the halo
+    forces and the second stage."""
+    from .numba_cuda import _count, _wait, dev_array, pinned_array
     got = dv.__dict__.get("edge_ranges")
     if got is not None and got[0] == dv.sort_gen and got[1] == (domain.lo, domain.hi):
         return got[2]
@@ -165,33 +177,78 @@ def edge_ranges(be, state, dv, domain):
         idx += [c0 * plane, (c0 + np_) * plane, ncells + c0 * plane, ncells + (c0 + np_) * plane]
     A = dv.arrays
     if "pick8" not in A:
-        from .numba_cuda import dev_array, pinned_array
         A["pick8"] = dev_array(8, np.int32)
         dv.__dict__["pinned_i8"] = pinned_array(8, np.int32)
     s = be._s(state)
     hk = be._on(state, HK.build(dv.dtype))
     hk.k_pick8[1, 1](A["start"], *idx, A["pick8"])
-    h = dv.__dict__["pinned_i8"]
-    A["pick8"].copy_to_host(h, stream=s)
-    _wait(s)
-    from .numba_cuda import _count
-    _count(state, "d2h_bytes", "edge", 32)
-    v = [int(x) for x in h]
-    out = {d: (planes[d][0], planes[d][1], tuple(v[4 * k:4 * k + 4])) for k, d in enumerate((-1, 1)) if d in planes}
+    bound = dv.__dict__.get("edge_bound")
+    if bound is not None and bound[0] == (domain.lo, domain.hi, domain.reach):
+        out = {d: (planes[d][0], planes[d][1], *bound[1][d]) for d in planes}
+    else:
+        h = dv.__dict__["pinned_i8"]
+        A["pick8"].copy_to_host(h, stream=s)
+        _wait(s)
+        _count(state, "d2h_bytes", "edge", 32)
+        v = [int(x) for x in h]
+        out = {d: (planes[d][0], planes[d][1], v[4 * k + 1] - v[4 * k], v[4 * k + 3] - v[4 * k + 2])
+               for k, d in enumerate((-1, 1)) if d in planes}
     dv.__dict__["edge_ranges"] = (dv.sort_gen, (domain.lo, domain.hi), out)
     return out
 
 
+def band_counts(be, state, dv, k):
+    """In the check (after the step's last move): launch the count of the rows that the next
+    sort's edges can hold -- every row within reach of a cut plus three cells -- into
+    `band` (fluid, boundary below the lower cut's band; the same above the upper one),
+    copied with the check's own results (no wait of its own). `take_band` reads it."""
+    from .numba_cuda import _VEC, dev_array, pinned_array
+    dom = dv.__dict__.get("domain")
+    if dom is None or not dv.n:
+        return False
+    A = dv.arrays
+    if "band" not in A:
+        A["band"] = dev_array(4, np.int32)
+        dv.__dict__["pinned_band"] = pinned_array(4, np.int32)
+    c = state.consts
+    wide = dom.reach + 3.0 * c.cell_size
+    tlo = dom.lo + wide if np.isfinite(dom.lo) else -np.inf
+    thi = dom.hi - wide if np.isfinite(dom.hi) else np.inf
+    k.k_fill[1, 32](A["band"], 4, 0)
+    be._on(state, HK.build(dv.dtype)).k_band_counts[CK.blocks(dv.n), CK.BLOCK](
+        A["p" + _VEC[dom.axis]], A["kind"], dv.n, float(tlo), float(thi), A["band"])
+    A["band"].copy_to_host(dv.__dict__["pinned_band"], stream=be._s(state))
+    dv.__dict__["band_for"] = (dom.lo, dom.hi, dom.reach)
+    return True
+
+
+def take_band(dv) -> None:
+    """After the check's wait: the counts become the next sort's edge bounds (1 % and 256
+    rows of slack on top of the three cells)."""
+    h = dv.__dict__["pinned_band"]
+    f_lo, b_lo, f_hi, b_hi = (int(x) for x in h)
+    pad = lambda m: m + m // 100 + 256   # noqa: E731
+    dv.__dict__["edge_bound"] = (dv.__dict__["band_for"], {-1: (pad(f_lo), pad(b_lo)), 1: (pad(f_hi), pad(b_hi))})
+
+
+def grow_bounds(dv, m_fluid, m_bound) -> None:
+    """Rows arrived after the check: each edge may hold them all."""
+    b = dv.__dict__.get("edge_bound")
+    if b is not None:
+        dv.__dict__["edge_bound"] = (b[0], {d: (f + m_fluid, bb + m_bound) for d, (f, bb) in b[1].items()})
+
+
 def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
     """The edge towards `direction` packed into this rank's buffer for `slot` (the message
-    tag), an event recorded after it; no host wait."""
+    tag), an event recorded after it; no host wait. The slot's layout is by the row bound:
+    the true count is on the device, in the packed cell starts."""
     from .numba_cuda import _event, _split, dev_array
-    c0, npl, (a0, b0, a1, b1) = edge_ranges(be, state, dv, domain)[direction]
-    m0, m = b0 - a0, (b0 - a0) + (b1 - a1)
+    c0, npl, fb, bb = edge_ranges(be, state, dv, domain)[direction]
+    cap = fb + bb
     g = dv.grid
     n0, n1 = int(g["dims"][0]), int(g["dims"][1])
     nch = n0 * n1 * npl
-    lay, nb = edge_layout(m, nch, dv.dtype)
+    lay, nb = edge_layout(cap, nch, dv.dtype)
     slots = dv.__dict__.setdefault("edge_slots", {})
     e = slots.get(slot)
     if e is None or e["buf"].shape[0] < nb:
@@ -202,19 +259,22 @@ def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
         slots[slot] = e
     e["gen"] += 1
     d = _split(e["buf"][:nb], lay)
+    A = dv.arrays
+    if "edge_over" not in A:
+        A["edge_over"] = dev_array(1, np.int32)
+        be._on(state, CK.build(dv.dtype)).k_fill[1, 1](A["edge_over"], 1, 0)
     hk = be._on(state, HK.build(dv.dtype))
     s = be._s(state)
     be._on(state, CK.build(dv.dtype)).k_fill[1, 1](d["head"], 1, e["gen"])     # head[0]: the generation
-    total = max(m, 2 * nch + 1)
-    hk.k_halo_pack[min(CK.blocks(total), 4096), CK.BLOCK](
-        dv.arrays["start"], c0 * n0 * n1, nch, int(g["ncells"]), dv.arrays["pos4"], dv.arrays["vel4"],
-        dv.arrays["kind"], total, d["start"], d["pos4"], d["vel4"], d["kind"])
+    hk.k_halo_pack[min(CK.blocks(max(cap, 2 * nch + 1)), 4096), CK.BLOCK](
+        A["start"], c0 * n0 * n1, nch, int(g["ncells"]), A["pos4"], A["vel4"], A["kind"], cap,
+        d["start"], d["pos4"], d["vel4"], d["kind"], A["edge_over"])
     e["event"].record(s if s else 0)
     state.bytes_sent += nb
     origin = np.array(g["origin"], np.float64)
     origin[2] += c0 * g["size"]
     dims = (n0, n1, npl)
-    return DeviceEdge(state.rank, slot, e["version"], e["gen"], m0, m, nch, dims, origin, g["size"], dv.moved,
+    return DeviceEdge(state.rank, slot, e["version"], e["gen"], fb, cap, nch, dims, origin, g["size"], dv.moved,
                       dv.dim, dv.dtype, nb, array=e["buf"], owner=e, event=e["event"])
 
 
@@ -286,8 +346,9 @@ def check_generations(state, dv) -> None:
     pend = dv.__dict__.get("gen_pending")
     if not pend:
         return
-    for src, slot, gen, h in pend:
-        if int(h[0]) != gen:
-            raise CommError(f"--halo-transport ipc: rank {src}'s edge buffer (tag {slot}) was rewritten "
-                            f"before rank {state.rank} read it: generation {int(h[0])}, expected {gen}")
+    bad = next(((src, slot, gen, int(h[0])) for src, slot, gen, h in pend if int(h[0]) != gen), None)
     pend.clear()
+    if bad is not None:
+        src, slot, gen, got = bad
+        raise CommError(f"--halo-transport ipc: rank {src}'s edge buffer (tag {slot}) was rewritten "
+                        f"before rank {state.rank} read it: generation {got}, expected {gen}")

@@ -45,18 +45,22 @@ def k_pick8(start, i0, i1, i2, i3, i4, i5, i6, i7, out):
         out[7] = start[i7]
 
 
-def k_halo_pack(start, f0, nch, ncells, pos4, vel4, kind, total, o_start, o_pos4, o_vel4, o_kind):
+def k_halo_pack(start, f0, nch, ncells, pos4, vel4, kind, cap, o_start, o_pos4, o_vel4, o_kind, over):
     """The edge of planes f0 .. f0 + nch - 1 (cell indices of the fluid half; the boundary
     half at ncells + f0): its rows (fluid range, then boundary range) into o_pos4 /
     o_vel4 / o_kind, and the cells' starts rebased to them (2 nch + 1 entries, kind-split
-    like `start`). Grid-stride over `total` threads: the row count is on the device."""
+    like `start`). The row count is on the device: a grid-stride loop over the slot's
+    `cap` rows; more rows than that (the host's bound failed) are reported in over[0]."""
     a0 = start[f0]
     m0 = start[f0 + nch] - a0
     a1 = start[ncells + f0]
     m = m0 + start[ncells + f0 + nch] - a1
     i = cuda.grid(1)
+    if i == 0 and m > cap:
+        over[0] = m
+    total = max(min(m, cap), 2 * nch + 1)
     while i < total:
-        if i < m:
+        if i < m and i < cap:
             s = a0 + i if i < m0 else a1 + (i - m0)
             for c in range(4):
                 o_pos4[4 * i + c] = pos4[4 * s + c]
@@ -69,14 +73,18 @@ def k_halo_pack(start, f0, nch, ncells, pos4, vel4, kind, total, o_start, o_pos4
         i += cuda.gridsize(1)
 
 
-def k_halo_fv(tpos4, tvel4, i0, i1, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
               a0, a1, a2, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_fv for fluid targets i0..i1-1 of (tpos4, tvel4) against the sources
+    """k_forces_fv for fluid targets rng[ri] .. rng[ri + 1] - 1 of (tpos4, tvel4) against the sources
     (pos4, vel4, start) of a halo's grid: the same loop and pair sums; partial sums out."""
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     ddt_kind = DDTK
     laminar = LAM
+    i0 = rng[ri]          # the targets' rows, from the device (edge_ranges): the launch covers a bound
+    i1 = rng[ri + 1]
+    if i0 >= i1:
+        return
     i = cuda.grid(1) + i0
     i = min(i, i1 - 1)    # spare threads repeat the last row: every lane reaches the warp maximum
     support2 = prm[P_SUPPORT2]
@@ -122,11 +130,15 @@ def k_halo_fv(tpos4, tvel4, i0, i1, pos4, vel4, start, ncells, o0, o1, o2, inv_s
         _warp_max_into(visc_, vmax)
 
 
-def k_halo_bv(tpos4, tvel4, i0, i1, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_halo_bv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
               a0, a1, a2, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
-    """k_forces_bv for boundary targets i0..i1-1 against a halo's fluid sources."""
+    """k_forces_bv for boundary targets rng[ri] .. rng[ri + 1] - 1 against a halo's fluid sources."""
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
+    i0 = rng[ri]
+    i1 = rng[ri + 1]
+    if i0 >= i1:
+        return
     i = cuda.grid(1) + i0
     i = min(i, i1 - 1)
     support2 = prm[P_SUPPORT2]
@@ -171,14 +183,22 @@ def k_halo_bv(tpos4, tvel4, i0, i1, pos4, vel4, start, ncells, o0, o1, o2, inv_s
         _warp_max_into(visc_, vmax)
 
 
-def k_reduce_ranged(n, dim, kind, gx, gy, gz, x0, y0, z0, r0, d0, c0,
-                    h1, f1a, f1b, b1a, b1b, x1, y1, z1, r1, d1, c1,
-                    h2, f2a, f2b, b2a, b2b, x2, y2, z2, r2, d2, c2, ax_, ay_, az_, ar_):
+def k_reduce_ranged(n, dim, kind, gx, gy, gz, x0, y0, z0, r0, d0, c0, rng,
+                    h1, o1, x1, y1, z1, r1, d1, c1, h2, o2, x2, y2, z2, r2, d2, c2, ax_, ay_, az_, ar_):
     """k_reduce (interior, halo 1, halo 2 in that order) where a halo part holds sums for
-    its target rows only (rows f_a..f_b-1 and b_a..b_b-1; h = 0: no such halo)."""
+    its target rows only (rows rng[o] .. rng[o+1]-1 and rng[o+2] .. rng[o+3]-1 of the
+    device's edge ranges; h = 0: no such halo)."""
     i = cuda.grid(1)
     if i >= n:
         return
+    f1a = rng[o1]
+    f1b = rng[o1 + 1]
+    b1a = rng[o1 + 2]
+    b1b = rng[o1 + 3]
+    f2a = rng[o2]
+    f2b = rng[o2 + 1]
+    b2a = rng[o2 + 2]
+    b2b = rng[o2 + 3]
     zero = r0[i] - r0[i]
     sx = zero + x0[i]
     sy = zero + y0[i]
@@ -223,7 +243,29 @@ def k_axis_hist(x, n, e0, e1, inv_w, nbins, out):
             cuda.atomic.add(out, b, 1)
 
 
-_PLAIN = ("k_pick8", "k_halo_pack", "k_reduce_ranged", "k_axis_hist")
+def k_band_counts(x, kind, n, tlo, thi, out):
+    """Rows below tlo and at or above thi, fluid and boundary: out += (fluid < tlo,
+    boundary < tlo, fluid >= thi, boundary >= thi) (shared-memory sums, an atomic a block
+    and counter): bounds on the next sort's edge rows."""
+    sh = cuda.shared.array(4, int32)
+    t = cuda.threadIdx.x
+    if t < 4:
+        sh[t] = 0
+    cuda.syncthreads()
+    i = cuda.grid(1)
+    if i < n:
+        v = x[i]
+        b = 0 if kind[i] == 0 else 1
+        if v < tlo:
+            cuda.atomic.add(sh, b, 1)
+        if v >= thi:
+            cuda.atomic.add(sh, 2 + b, 1)
+    cuda.syncthreads()
+    if t < 4 and sh[t] != 0:
+        cuda.atomic.add(out, t, sh[t])
+
+
+_PLAIN = ("k_pick8", "k_halo_pack", "k_reduce_ranged", "k_axis_hist", "k_band_counts")
 _BUILT: dict = {}
 _FORCES: dict = {}
 

@@ -789,7 +789,9 @@ class NumbaCUDA(ComputeBackend):
         up = nb
         dv.n = n + m
         dv.moved = np.inf          # rows moved in the arrays: no trimming until the next sort
-        dv.nf += int(np.count_nonzero(r.kind == 0))
+        mf = int(np.count_nonzero(r.kind == 0))
+        dv.nf += mf
+        CH.grow_bounds(dv, mf, m - mf)
         dv.fit_fluid()
         if dv.box is not None:      # the next grid must hold the new rows
             dv.box[0, :dim] = np.minimum(dv.box[0, :dim], r.pos.min(axis=0))
@@ -1212,7 +1214,9 @@ class NumbaCUDA(ComputeBackend):
             dv.parts.pop(part, None)
             dv.halo_ranges.pop(side, None)
             return
-        a0, b0, a1, b1 = CH.edge_ranges(self, state, dv, dv.__dict__["domain"])[-1 if side == 1 else 1][2]
+        d = -1 if side == 1 else 1
+        _, _, fb, bb = CH.edge_ranges(self, state, dv, dv.__dict__["domain"])[d]
+        ro = 0 if d < 0 else 4         # the targets' exact ranges in pick8 (a0, b0, a1, b1)
         m = max(dv.n, dv.cap, 1)
         buf = dv.parts.get(part)
         if buf is None or buf["ar"].shape[0] < m:
@@ -1220,7 +1224,7 @@ class NumbaCUDA(ComputeBackend):
                    "z": dev_array(m if dv.dim == 3 else 1, dv.dtype),
                    "ar": dev_array(m, dv.dtype), "ddt": dev_array(m, dv.dtype), "cancel": dev_array(m, np.int8)}
             dv.parts[part] = buf
-        dv.halo_ranges[side] = (a0, b0, a1, b1)
+        dv.halo_ranges[side] = ro
         A = dv.arrays
         axes = dv.grid["axes"]
         ft = dv.dtype.type
@@ -1241,10 +1245,10 @@ class NumbaCUDA(ComputeBackend):
         kf = self._on(state, HK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
                                               int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
         FB = CK.FORCE_BLOCK
-        if b0 > a0:
-            kf.k_halo_fv[CK.blocks(b0 - a0, FB), FB](A["pos4"], A["vel4"], a0, b0, *args)
-        if b1 > a1:
-            kf.k_halo_bv[CK.blocks(b1 - a1, FB), FB](A["pos4"], A["vel4"], a1, b1, *args)
+        if fb:
+            kf.k_halo_fv[CK.blocks(fb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro, *args)
+        if bb:
+            kf.k_halo_bv[CK.blocks(bb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro + 2, *args)
         dv.final = False
         self._sync()
 
@@ -1285,8 +1289,7 @@ class NumbaCUDA(ComputeBackend):
             name = f"halo_{side}"
             r = dv.halo_ranges.get(side) if name in P else None
             b = P[name] if r is not None else inner
-            flat += [1 if r is not None else 0, *(r or (0, 0, 0, 0)),
-                     b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
+            flat += [1 if r is not None else 0, r or 0, b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
         gvec = np.zeros(3)
         gvec[:dv.dim] = state.consts.gravity
         ft = dv.dtype.type
@@ -1294,7 +1297,7 @@ class NumbaCUDA(ComputeBackend):
         hk = self._on(state, HK.build(dv.dtype))
         hk.k_reduce_ranged[CK.blocks(dv.n), CK.BLOCK](
             dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
-            inner["x"], inner["y"], inner["z"], inner["ar"], inner["ddt"], inner["cancel"], *flat,
+            inner["x"], inner["y"], inner["z"], inner["ar"], inner["ddt"], inner["cancel"], A["pick8"], *flat,
             A["ax"], A["ay"], A["az"], A["ar"])
 
     def dt_local(self, state) -> float:
@@ -1307,7 +1310,14 @@ class NumbaCUDA(ComputeBackend):
             k.k_dt_terms[min(CK.REDUCE_BLOCKS, CK.blocks(dv.n)), 256](
                 A["ax"], A["ay"], A["az"], A["vx"], A["vy"], A["vz"], A["visc"], A["kind"], dv.n, dv.dim, A["dtout"])
         A["dtout"].copy_to_host(dv.pinned_dt, stream=s)     # after the compute lane's forces and reduce
+        over = A.get("edge_over")
+        if over is not None:                     # an edge outgrew its bound (ipc halos): never silent
+            over.copy_to_host(dv.pinned_i4[:1], stream=s)
         _wait(s)
+        if over is not None and int(dv.pinned_i4[0]):
+            from sphgraph.errors import SphgraphError
+            raise SphgraphError(f"rank {state.rank}: an edge of {int(dv.pinned_i4[0])} rows outgrew the bound "
+                                f"counted at the last check (cuda_halo.band_counts)")
         CH.check_generations(state, dv)          # ipc halos from other processes
         _count(state, "d2h_bytes", "dt", 24)
         a2, v2, vm = (float(x) for x in dv.pinned_dt)
@@ -1364,10 +1374,13 @@ class NumbaCUDA(ComputeBackend):
             k.k_check_bounds[min(CK.REDUCE_BLOCKS, CK.blocks(n)), 256](
                 A["px"], A["py"], A["pz"], A["rho"], A["kind"], n, dim, *lo3, *hi3,
                 float(state.rho_min), float(min(state.rho_max, 1e300)), A["chk_bad"], A["chk_box"])
+        band = CH.band_counts(self, state, dv, k)     # the next sort's edge bounds, in the same wait
         s = self._s(state)
         A["chk_box"].copy_to_host(dv.pinned_chk[:6], stream=s)
         A["chk_bad"].copy_to_host(dv.pinned_bad, stream=s)
         _wait(s)
+        if band:
+            CH.take_band(dv)
         box = dv.pinned_chk[:6].copy()
         bad = int(dv.pinned_bad[0])
         _count(state, "d2h_bytes", "check", 56)
