@@ -1,11 +1,27 @@
-"""sphgraph: SPH free-surface flow where every timestep is an explicit task graph."""
+"""sphgraph: SPH free-surface flow where every timestep is an explicit task graph.
+
+The public names are imported on first use (PEP 562), so ``import sphgraph.cli`` is
+cheap: the command line installs its SIGINT handling before numba and numpy load.
+"""
 __version__ = "0.1.0"
 
 from .errors import InputError, NumericalError  # noqa: E402
-from .graph.task import UserTask  # noqa: E402
-from .scene import Scene  # noqa: E402
-from .schedule import Schedule  # noqa: E402
-from .solver import RunResult, Simulation, run  # noqa: E402
+
+_LAZY = {"Scene": ".scene", "Schedule": ".schedule", "UserTask": ".graph.task", "run": ".solver",
+         "Simulation": ".solver", "RunResult": ".solver"}
 
 __all__ = ["Scene", "Schedule", "UserTask", "run", "Simulation", "RunResult", "InputError",
            "NumericalError", "__version__"]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'sphgraph' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

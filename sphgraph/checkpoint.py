@@ -41,7 +41,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
-from .io import _commit
+from .files import CHECKPOINT_LIMIT, check_regular, disk_full, h5_atomic, is_no_space, parse_toml
 from .particles import Particles
 
 CKPT_DIR = "checkpoints"
@@ -143,9 +143,15 @@ def write(path: str, meta: dict, blocks: list[dict], cuts, fsync: bool = True,
     meta = {k: _canon(v) for k, v in meta.items()}
     meta["sha256"] = _digest(meta, blocks, cuts, exclusions)
     d = os.path.dirname(path)
-    os.makedirs(d, exist_ok=True)
-    tmp = os.path.join(d, "." + os.path.basename(path) + ".tmp")
-    with h5py.File(tmp, "w", libver=("v110", "latest")) as f:
+    try:
+        os.makedirs(d, exist_ok=True)
+    except OSError as e:
+        if is_no_space(e):
+            raise disk_full(d) from None
+        raise
+    size = sum(np.asarray(b[name]).nbytes for b in blocks for name in FIELDS)
+    # a full disk: DiskFullError (exit 1), no temp file left, the older checkpoints intact
+    with h5_atomic(path, fsync=fsync, size_hint=size, libver=("v110", "latest")) as f:
         for k, v in meta.items():
             f.attrs[k] = v
         for r, b in enumerate(blocks):
@@ -158,7 +164,6 @@ def write(path: str, meta: dict, blocks: list[dict], cuts, fsync: bool = True,
             g = f.create_group("exclusions")
             for name in EXCLUSION_FIELDS:
                 g.create_dataset(name, data=np.ascontiguousarray(exclusions[name]))
-    _commit(tmp, path, fsync)
     return path
 
 
@@ -182,22 +187,56 @@ class Checkpoint:
 def load(path) -> Checkpoint:
     """Read and verify one checkpoint; `InputError` when unreadable or the checksum fails."""
     path = os.fspath(path)
+    check_regular(path, CHECKPOINT_LIMIT, "checkpoint file")   # not a FIFO or a device: h5py would block
     try:
         with h5py.File(path, "r") as f:
             meta = {k: _canon(v) for k, v in f.attrs.items()}
+            _check_meta(path, meta)
             n = int(meta["ranks"])
             raw = [{name: f[f"rank_{r:04d}/{name}"][()] for name in FIELDS} for r in range(n)]
             cuts = f["cuts"][()] if "cuts" in f else None
             exclusions = ({name: f[f"exclusions/{name}"][()] for name in EXCLUSION_FIELDS}
                           if "exclusions" in f else None)
-    except (OSError, KeyError, ValueError) as e:
+    except (OSError, KeyError, ValueError, TypeError, AttributeError) as e:
         raise InputError(f"{path}: checkpoint: expected a complete sphgraph checkpoint, "
                          f"got an unreadable file ({type(e).__name__}: {e})") from None
     if meta.get("sha256") != _digest(meta, raw, cuts, exclusions):
         raise InputError(f"{path}: checkpoint: expected checksum {meta.get('sha256')}, "
                          "got different data (damaged file)")
-    blocks = [Particles(**{k: np.ascontiguousarray(b[k]) for k in FIELDS}) for b in raw]
+    try:
+        blocks = [Particles(**{k: np.ascontiguousarray(b[k]) for k in FIELDS}) for b in raw]
+        if sum(b.n for b in blocks) != meta["n_total"] or any(b.dim != meta["dim"] for b in blocks):
+            raise ValueError(f"{sum(b.n for b in blocks)} rows of dim {blocks[0].dim if blocks else '?'} "
+                             f"where the attributes say {meta['n_total']} of dim {meta['dim']}")
+    except (ValueError, TypeError, IndexError) as e:
+        raise InputError(f"{path}: checkpoint: expected rows of one state, got {e}") from None
     return Checkpoint(path, meta, blocks, cuts, exclusions)
+
+
+# attributes a checkpoint must hold, by type (a checkpoint of another format or a foreign file
+# is refused in one line before any of its numbers is used)
+_META = {"format": int, "step": int, "time": float, "dt": float, "next_out": float, "frames": int,
+         "last_saved": int, "next_checkpoint": float, "scene": str, "schedule": str, "precision": str,
+         "ranks": int, "axis": int, "integrator": str, "dim": int, "n_total": int, "sha256": str}
+
+
+def _check_meta(path, meta: dict) -> None:
+    if meta.get("format") != FORMAT or type(meta.get("format")) is not int:
+        raise InputError(f"{path}: checkpoint: format: expected {FORMAT} (the checkpoints this version "
+                         f"{__version__} writes), got {meta.get('format')!r} (version {meta.get('version')!r})")
+    for key, kind in _META.items():
+        v = meta.get(key)
+        if kind is float:   # next_checkpoint is inf when no time cadence is set
+            ok = (isinstance(v, (int, float)) and not isinstance(v, bool)
+                  and (math.isfinite(v) or (key == "next_checkpoint" and v == math.inf)))
+        else:
+            ok = isinstance(v, kind) and not isinstance(v, bool)
+        if not ok:
+            raise InputError(f"{path}: checkpoint: {key}: expected {kind.__name__}, got {v!r}")
+    if not (1 <= meta["ranks"] <= 4096 and meta["dim"] in (2, 3) and meta["precision"] in ("float32", "float64")
+            and meta["step"] >= 0 and meta["n_total"] >= 1):
+        raise InputError(f"{path}: checkpoint: expected ranks 1-4096, dim 2 or 3, a known precision, "
+                         f"got ranks {meta['ranks']}, dim {meta['dim']}, precision {meta['precision']!r}")
 
 
 def find_latest(out_dir, warn=True) -> Checkpoint:
@@ -329,12 +368,8 @@ def prune(out_dir, keep: int = KEEP, after_step: int | None = None) -> None:
 
 def check_scene(ckpt: Checkpoint, scene) -> None:
     """The run's scene must be the checkpoint's (end_time and name may differ)."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python < 3.11
-        import tomli as tomllib
     from .scene import Scene
-    stored = Scene._validate(tomllib.loads(ckpt.meta["scene"]), f"{ckpt.path}:scene",
+    stored = Scene._validate(parse_toml(ckpt.meta["scene"], f"{ckpt.path}:scene"), f"{ckpt.path}:scene",
                              default_name=scene.name, text=ckpt.meta["scene"])
     a, b = stored.to_dict(), scene.to_dict()
     for d in (a, b):

@@ -9,11 +9,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import tempfile
+import threading
 import traceback
 
-from .errors import CommError, InputError, NumericalError, SphgraphError
+from .errors import CommError, DiskFullError, InputError, NumericalError, SphgraphError
+from .ranges import check_flag
 
 
 class _Parser(argparse.ArgumentParser):
@@ -199,16 +202,19 @@ def _rank_speed(text):
     if not text:
         return None
     try:
-        return [float(x) for x in text.split(",")]
+        speeds = [float(x) for x in text.split(",")]
     except ValueError:
         raise InputError(f"--rank-speed: expected comma-separated numbers, got {text!r}") from None
+    for v in speeds:
+        check_flag("--rank-speed", v)
+    return speeds
 
 
 def _faults(flag, text):
     """--duplicate/--loss: '0.01' (a probability) or '5,17' (message numbers)."""
     try:
-        if any(c in text for c in ".eE"):
-            return float(text)
+        if any(c in text for c in ".eEnN"):   # a probability (nan and inf are refused by its range)
+            return check_flag(f"--{flag}", float(text))
         return [int(x) for x in text.split(",")]
     except ValueError:
         raise InputError(f"--{flag}: expected a probability (e.g. 0.01) or comma-separated message "
@@ -226,15 +232,35 @@ def _comm_options(args):
     for flag in ("seed", "watchdog", "halo_transport"):
         if getattr(args, flag, None) is not None:
             opts[flag] = getattr(args, flag)
+    if opts.get("seed") is not None:
+        check_flag("--seed", opts["seed"], integer=True)
+    if opts.get("watchdog") is not None:
+        check_flag("--watchdog", opts["watchdog"])
     return opts
 
 
+def _preflight(args, opts) -> None:
+    """`run`/`bench`: numbers of the flags in range, every flag applying to --comm, the
+    backend able to run here; one line each, before any work (sphgraph.preflight)."""
+    from .preflight import check_backend, check_comm
+    for flag, value, integer in (("--dp", args.dp, False), ("--end-time", getattr(args, "end_time", None), False),
+                                 ("--max-steps", getattr(args, "max_steps", None), True),
+                                 ("--steps", getattr(args, "steps", None), True),
+                                 ("--warmup", getattr(args, "warmup", None), True)):
+        if value is not None:
+            check_flag(flag, value, integer=integer)
+    check_comm(args.comm, args.ranks, opts)
+    check_backend(args.backend)
+
+
 def cmd_run(args) -> int:
+    opts = _comm_options(args)
+    _preflight(args, opts)
     from .solver import run
     res = run(args.scene, backend=args.backend, comm=args.comm, ranks=args.ranks, schedule=args.schedule,
               out=args.out, overwrite=args.overwrite, precision=args.precision, end_time=args.end_time,
               max_steps=args.max_steps, dp=args.dp, progress=not args.quiet,
-              comm_options=_comm_options(args), checkpoint_every=args.checkpoint_every,
+              comm_options=opts, checkpoint_every=args.checkpoint_every,
               restart=args.restart, walltime=args.walltime, invariants=not args.no_invariants,
               balance=_balance_flags(args))
     if res.stopped is not None and _is_root(res):
@@ -254,10 +280,12 @@ def _is_root(res):
 
 
 def cmd_bench(args) -> int:
+    opts = _comm_options(args)
+    _preflight(args, opts)
     from .bench import bench
     out = bench(args.scene, steps=args.steps, warmup=args.warmup, backend=args.backend, comm=args.comm,
                 ranks=args.ranks, schedule=args.schedule, precision=args.precision, dp=args.dp,
-                comm_options=_comm_options(args), balance=_balance_flags(args))
+                comm_options=opts, balance=_balance_flags(args))
     if out is not None:
         print(json.dumps(out))
     return 0
@@ -408,6 +436,24 @@ COMMANDS = {"validate": cmd_validate, "study": cmd_study, "run": cmd_run, "bench
 
 
 def main(argv=None) -> int:
+    """The command line; returns the exit code. SIGINT at any moment (start-up, a step, a
+    write, the report of another error) ends with one line and 130."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)   # KeyboardInterrupt, wherever it lands
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)   # a second ^C must not interrupt the report
+        print("sphgraph: interrupted (SIGINT); output written so far stays readable", file=sys.stderr)
+        return 130
+
+
+def _root() -> bool:
+    return os.environ.get("PMI_RANK", "0") == "0"   # under MPI every rank raises it: print once
+
+
+def _main(argv) -> int:
     try:
         args = build_parser().parse_args(argv)
         return COMMANDS[args.cmd](args)
@@ -416,22 +462,22 @@ def main(argv=None) -> int:
         first = (sys.argv[1:] if argv is None else list(argv))[:1]
         if len(lines) > 1 and first and first[0] in ("run", "bench"):   # run: one line (DESIGN.md §5)
             lines = [f"{lines[0]} (and {len(lines) - 1} more problem(s): see `sphgraph schedule validate`)"]
-        if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
+        if _root():
             for line in lines:
                 print(f"sphgraph: error: {line}", file=sys.stderr)
         return 2
     except NumericalError as e:
-        if os.environ.get("PMI_RANK", "0") == "0":   # under MPI every rank raises it: print once
+        if _root():
             print(f"sphgraph: numerical failure: {e}", file=sys.stderr)
         return 1
+    except DiskFullError as e:   # the writing rank (the root) reports it
+        print(f"sphgraph: {e}", file=sys.stderr)
+        return e.exit_code
     except CommError as e:   # one line: which ranks, task or tag, step
         print(f"sphgraph: communication error: {e}", file=sys.stderr)
         return e.exit_code
     except SphgraphError as e:
         return _internal(e)
-    except KeyboardInterrupt:
-        print("sphgraph: interrupted", file=sys.stderr)
-        return 130
     except Exception as e:  # noqa: BLE001 - exit 3 with the traceback in a log, never a bare crash
         return _internal(e)
 

@@ -2,6 +2,7 @@
 
 InputError -> 2 (bad input or usage: one line naming file, key and expected form)
 NumericalError -> 1 (blow-up or violated invariant: step, cause, particle id)
+DiskFullError -> 1 (no space left for output: the path and the free space)
 CommError -> 3 (a message duplicated or lost, or a wait past the watchdog: one line)
 anything else -> 3 (internal error: short message, traceback to a log file)
 """
@@ -33,6 +34,18 @@ class NumericalError(SphgraphError):
         self.step = step
         self.particle_id = particle_id
         self.cause = cause
+
+
+class DiskFullError(SphgraphError):
+    """No space left to write output or a checkpoint. Nothing half-written stays behind,
+    earlier frames and checkpoints are intact; the message names the path and the free bytes."""
+
+    exit_code = 1
+
+    def __init__(self, message, path=None, free=None):
+        super().__init__(message)
+        self.path = path
+        self.free = free
 
 
 class DeadlockError(SphgraphError):

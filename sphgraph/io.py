@@ -45,6 +45,7 @@ import h5py
 import numpy as np
 
 from .errors import InputError
+from .files import guard_write, h5_atomic
 from .xdmf import FieldSpec, FrameSpec, write_xdmf
 
 __all__ = [
@@ -330,15 +331,14 @@ class OutputWriter:
             raise ValueError(f"write_frame: index must be >= 0, got {index}")
         data = self._validate_frame(arrays)
         final = self.frame_path(index)
-        tmp = os.path.join(self.out_dir, FRAMES_DIR, f".frame_{index:06d}.h5.tmp")
-        with h5py.File(tmp, "w") as f:
+        # a full disk: DiskFullError (exit 1), no temp file, the earlier frames untouched
+        with h5_atomic(final, fsync=self.fsync, size_hint=sum(a.nbytes for a in data.values())) as f:
             g = f.create_group(FRAME_GROUP)
             g.attrs["index"] = np.int64(index)
             g.attrs["time"] = np.float64(time)
             g.attrs["step"] = np.int64(step)
             for name, arr in data.items():
                 g.create_dataset(name, data=arr)
-        _commit(tmp, final, self.fsync)
         n = len(data["id"])
         self._frames[index] = FrameSpec(
             index=index, time=float(time), file=_frame_relpath(index), group=FRAME_GROUP, n=n,
@@ -536,9 +536,11 @@ class OutputWriter:
 
     def _write_master(self) -> None:
         """Rebuild output.h5 from memory into a temp file and rename it into place."""
-        tmp = os.path.join(self.out_dir, f".{MASTER_NAME}.tmp")
+        timing = self._timing()
+        size = sum(v.nbytes for v in timing.values()) + sum(
+            np.asarray(v).nbytes for d, _ in self._groups.values() for v in _leaves(d))
         # libver v110: dense attribute storage, so a long scene text fits in an attr.
-        with h5py.File(tmp, "w", libver=("v110", "latest")) as f:
+        with h5_atomic(self.master_path, fsync=self.fsync, size_hint=size, libver=("v110", "latest")) as f:
             for key, value in self.root_attrs.items():
                 f.attrs[key] = value
             frames = f.create_group("frames")
@@ -555,15 +557,24 @@ class OutputWriter:
             for key in sorted(self._groups):
                 datasets, attrs = self._groups[key]
                 _write_tree(f.require_group(key), datasets, attrs)
-        _commit(tmp, self.master_path, self.fsync)
 
     def _write_xdmf(self) -> None:
-        write_xdmf(self.xdmf_path, self._frames.values(), self.dim, fsync=self.fsync)
+        tmp = os.path.join(self.out_dir, f".{XDMF_NAME}.tmp")   # the name write_xdmf writes first
+        with guard_write(tmp, self.xdmf_path):
+            write_xdmf(self.xdmf_path, self._frames.values(), self.dim, fsync=self.fsync)
 
 
 def _empty_timing() -> dict[str, np.ndarray]:
     return {k: (np.zeros(0, dtype="S1") if k in ("task", "lane") else
                 np.zeros(0, dtype=_TIMING_DTYPES[k])) for k in TIMING_FIELDS}
+
+
+def _leaves(d: dict):
+    for v in d.values():
+        if isinstance(v, dict):
+            yield from _leaves(v)
+        else:
+            yield v
 
 
 def _copy_tree(d: dict) -> dict:

@@ -22,12 +22,12 @@ everything multi-rank on one rank) are skipped.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 from .errors import InputError
+from .files import SCHEDULE_LIMIT, parse_toml, read_text
 from .graph.build import find_deadlock, multi_rank_graph, order_violations, rank_graph
 from .graph.kinds import LANES, TaskKind
 from .graph.task import Task, UserTask
@@ -78,18 +78,12 @@ class Schedule:
                                  f"{', '.join(shipped())}")
             text = resources.files("sphgraph.schedules").joinpath(spec + ".toml").read_text()
             return cls.from_text(text, source=f"{spec}.toml", name=spec)
-        try:
-            text = path.read_text()
-        except OSError as e:
-            raise InputError(f"{spec}: cannot read schedule file: {e.strerror}") from None
+        text = read_text(path, SCHEDULE_LIMIT, "schedule file")
         return cls.from_text(text, source=spec, name=path.stem)
 
     @classmethod
     def from_text(cls, text: str, source: str, name: str | None = None) -> "Schedule":
-        try:
-            d = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as e:
-            raise InputError(f"{source}: invalid TOML: {e}") from None
+        d = parse_toml(text, source)
         s = cls.from_dict(d, source=source, name=name)
         s.text = text
         return s

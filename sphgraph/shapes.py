@@ -30,6 +30,7 @@ import numpy as np
 
 from . import geometry as geo
 from . import stl
+from .files import FileRefused
 
 SHAPE_TYPES = ("cylinder", "slope", "stl")
 FLUID_SHAPES = ("cylinder", "stl")
@@ -91,12 +92,14 @@ def validate(c, key: str, e: dict, group: str, dim: int, base_dir: Path) -> dict
         except OSError as err:
             raise c.error(f"{key}.path", "a readable STL file (relative to the scene file)",
                           f"{raw!r} ({type(err).__name__}: {err.strerror or err})", literal=True) from None
+        except FileRefused as err:   # not a regular file, too large (sphgraph.files)
+            raise c.error(f"{key}.path", err.expected, f"{raw!r}: {err.got}", literal=True) from None
         except stl.MeshError as err:
             raise c.error(f"{key}.path", "a binary or ASCII STL file", f"{raw!r}: {err}", literal=True) from None
-        n_open = stl.open_edges(tris)
-        if n_open:
-            raise c.error(f"{key}.path", "a closed (watertight) triangle mesh",
-                          f"{raw!r} with {n_open} edges not shared by exactly two triangles", literal=True)
+        problem = stl.closure_problem(tris)
+        if problem:
+            raise c.error(f"{key}.path", "a closed (watertight) triangle mesh enclosing a volume",
+                          f"{raw!r} with {problem}", literal=True)
     if group == "boundary" and t != "slope":
         out["fill"] = c.choice(f"{key}.fill", e.get("fill", "solid"), FILLS)
         if out["fill"] == "solid" and "layers" in e:

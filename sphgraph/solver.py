@@ -16,7 +16,7 @@ from . import __version__
 from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
-from .errors import CAUSES, CommError, InputError, NumericalError, SphgraphError
+from .errors import CAUSES, CommError, DiskFullError, InputError, NumericalError, SphgraphError
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -297,10 +297,24 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     from .io import OutputWriter, prepare_out_dir
     from .progress import Progress
 
+    from .files import check_out_dir
+    from .preflight import check_backend, check_comm, check_ranks_fit
+    from .ranges import check_flag
+
+    # start-up checks, cheapest first and each before anything of its size exists
     every = ck.parse_every(checkpoint_every)
     walltime = ck.parse_walltime(walltime)
-    if max_steps is not None and (isinstance(max_steps, bool) or int(max_steps) < 1):
-        raise InputError(f"--max-steps: expected an integer >= 1, got {max_steps!r}")
+    if max_steps is not None:
+        check_flag("--max-steps", max_steps, integer=True)
+    check_comm(comm if isinstance(comm, str) else comm.name, ranks, comm_options)
+    check_backend(backend)
+    if not isinstance(scene, Scene):
+        scene = Scene.from_toml(scene)
+    if dp is not None or end_time is not None:
+        scene, dp, end_time = scene.with_overrides(dp=dp, end_time=end_time), None, None
+    check_ranks_fit(scene, ranks)
+    if write_output and restart is None:
+        check_out_dir(out if out is not None else Path("out") / scene.name)
     saved = None
     if restart is not None:
         run_dir = ck.run_dir_of(restart)
@@ -368,64 +382,56 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     stopped = None
     keeper.install()
     try:
-        if write_output and saved is None:
-            save_frame()
-        if sampler is not None:
-            sampler.sample(sim)
-        next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
-        t0 = time.perf_counter()
-        compile_s = 0.0
-        while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
-            sim.step()
-            if sampler is not None:
-                sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
-            if sim.step_count == start_step + 1:
-                compile_s = time.perf_counter() - t0
-                prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")
-                prog.reset_clock(1)
-            if write_output and sim.time >= next_out - 1e-12:
+        try:
+            if write_output and saved is None:
                 save_frame()
-                while next_out <= sim.time + 1e-12:
-                    next_out += scene.output_interval
-            if keeper.due():
-                keeper.save(next_out, frames, last_saved)
-            prog.update(sim.time, sim.step_count)
-            if write_output:
-                stopped = keeper.stop_reason()
-                if stopped is not None:
-                    if keeper.last_step != sim.step_count:
-                        keeper.save(next_out, frames, last_saved)
-                    break
-        wall = time.perf_counter() - t0
-        if stopped is None and every is not None and keeper.last_step != sim.step_count:
-            keeper.save(next_out, frames, last_saved)   # the end state (before the end frame): extendable
-        if stopped is None and write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
-            save_frame()
-        sim.comm.finish()   # a message sent but never received (a duplicate in the last step): reported
-    except NumericalError:
+            if sampler is not None:
+                sampler.sample(sim)
+            next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
+            t0 = time.perf_counter()
+            compile_s = 0.0
+            while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
+                sim.step()
+                if sampler is not None:
+                    sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
+                if sim.step_count == start_step + 1:
+                    compile_s = time.perf_counter() - t0
+                    prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")
+                    prog.reset_clock(1)
+                if write_output and sim.time >= next_out - 1e-12:
+                    save_frame()
+                    while next_out <= sim.time + 1e-12:
+                        next_out += scene.output_interval
+                if keeper.due():
+                    keeper.save(next_out, frames, last_saved)
+                prog.update(sim.time, sim.step_count)
+                if write_output:
+                    stopped = keeper.stop_reason()
+                    if stopped is not None:
+                        if keeper.last_step != sim.step_count:
+                            keeper.save(next_out, frames, last_saved)
+                        break
+            wall = time.perf_counter() - t0
+            if stopped is None and write_output and keeper.last_step != sim.step_count:
+                # every finished run can be extended (--restart --end-time), planned or not
+                keeper.save(next_out, frames, last_saved)   # the end state, before the end frame
+            if stopped is None and write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
+                save_frame()
+            sim.comm.finish()   # a message sent but never received (a duplicate in the last step): reported
+        except NumericalError:
+            keeper.uninstall()
+            prog.close()
+            _finish_output(writer, sim, sampler)   # on every rank: gathers the ranks' timings under MPI
+            raise
         keeper.uninstall()
         prog.close()
-        _write_timing(writer, sim)   # on every rank: gathers the ranks' timings under MPI
-        _write_exclusions(writer, sim)
-        if writer is not None:
-            if sampler is not None:
-                sampler.write(writer)
-            writer.close()
-        raise
+        _finish_output(writer, sim, sampler)
     except Exception as e:
         keeper.uninstall()
-        if (not isinstance(e, SphgraphError) or isinstance(e, CommError)) \
+        if (not isinstance(e, SphgraphError) or isinstance(e, (CommError, DiskFullError))) \
                 and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
             _abort_all(sim, e)
         raise
-    keeper.uninstall()
-    prog.close()
-    _write_timing(writer, sim)
-    _write_exclusions(writer, sim)
-    if writer is not None:
-        if sampler is not None:
-            sampler.write(writer)
-        writer.close()
     return RunResult(out_dir=out_dir, steps=sim.step_count, time=sim.time, wall_s=wall,
                      compile_s=compile_s, particles=sim.n_total, fluid_particles=sim.n_fluid, dim=sim.dim,
                      backend=sim.compute.name, comm=sim.comm.name, ranks=sim.nranks,
@@ -434,6 +440,16 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      task_seconds=sim.scheduler.times.seconds_by_kind(first_step=start_step + 1),
                      timing=sim.scheduler.times, start_step=start_step, stopped=stopped,
                      checkpoint=keeper.last_path)
+
+
+def _finish_output(writer, sim, sampler) -> None:
+    """/timing, /exclusions, /probes and /forces, then the final master (call on every rank)."""
+    _write_timing(writer, sim)
+    _write_exclusions(writer, sim)
+    if writer is not None:
+        if sampler is not None:
+            sampler.write(writer)
+        writer.close()
 
 
 def _abort_all(sim, e) -> None:
@@ -445,6 +461,10 @@ def _abort_all(sim, e) -> None:
     c = sim.contexts[0]
     if isinstance(e, CommError):   # a message fault: its one line names ranks, task and step
         print(f"sphgraph: communication error: {e}; aborting all ranks", file=sys.stderr, flush=True)
+        sim.comm.abort(e.exit_code)
+        os._exit(e.exit_code)
+    if isinstance(e, DiskFullError):   # the root ran out of space: every rank stops with exit 1
+        print(f"sphgraph: {e}; aborting all ranks", file=sys.stderr, flush=True)
         sim.comm.abort(e.exit_code)
         os._exit(e.exit_code)
     fd, log = tempfile.mkstemp(prefix=f"sphgraph-error-rank{c.rank}-", suffix=".log")

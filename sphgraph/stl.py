@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import STL_LIMIT, read_bytes
+
 _BIN_DTYPE = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
 _FLOAT = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _VERTEX = re.compile(rb"vertex\s+(" + _FLOAT.encode() + rb")\s+(" + _FLOAT.encode()
@@ -39,12 +41,12 @@ def read_stl(path) -> np.ndarray:
     MeshError
         Neither a binary nor an ASCII STL, no triangles, or non-finite coordinates.
     """
-    data = Path(path).read_bytes()
+    data = read_bytes(path, STL_LIMIT, "STL file")
     if len(data) >= 84:
         n = int(np.frombuffer(data, "<u4", 1, 80)[0])
         if len(data) == 84 + 50 * n:
-            tris = np.frombuffer(data, _BIN_DTYPE, n, 84)["v"].astype(np.float64)
-            return _checked(_decimal(tris))
+            tris = _checked(np.frombuffer(data, _BIN_DTYPE, n, 84)["v"].astype(np.float64))
+            return _decimal(tris)
     head = data[:512].lstrip().lower()
     if not head.startswith(b"solid"):
         raise MeshError(f"{len(data)} bytes that are neither a binary STL (84 + 50*T bytes) "
@@ -52,7 +54,8 @@ def read_stl(path) -> np.ndarray:
     vals = _VERTEX.findall(data)
     if len(vals) % 3:
         raise MeshError(f"an ASCII STL with {len(vals)} vertices (not a multiple of 3)")
-    tris = np.array(vals, dtype=np.float64).reshape(-1, 3, 3) if vals else np.empty((0, 3, 3))
+    with np.errstate(over="ignore"):   # 1e999 reads as inf, and is refused as such
+        tris = np.array(vals, dtype=np.float64).reshape(-1, 3, 3) if vals else np.empty((0, 3, 3))
     return _checked(tris)
 
 
@@ -70,11 +73,34 @@ def _decimal(x: np.ndarray) -> np.ndarray:
 
 
 def _checked(tris: np.ndarray) -> np.ndarray:
+    """Refuse an empty mesh and non-finite vertices before any arithmetic on them."""
     if len(tris) == 0:
         raise MeshError("an STL file without triangles")
-    if not np.all(np.isfinite(tris)):
-        raise MeshError("an STL file with non-finite coordinates")
+    bad = ~np.isfinite(tris).all(axis=(1, 2))
+    if bad.any():
+        raise MeshError(f"an STL file with non-finite coordinates ({int(bad.sum())} triangles, "
+                        f"the first is triangle {int(np.argmax(bad))})")
     return tris
+
+
+def closure_problem(tris: np.ndarray) -> str | None:
+    """Why finite triangles ``[T, 3, 3]`` are no closed surface around a volume, or None.
+
+    Closed: every edge shared by exactly two triangles (:func:`open_edges`). Around a
+    volume: a non-zero surface area and enclosed volume (relative to the bounding box), so
+    triangles that collapse to lines or points -- combinatorially closed -- are refused.
+    """
+    n_open = open_edges(tris)
+    if n_open:
+        return f"{n_open} edges not shared by exactly two triangles"
+    with np.errstate(all="ignore"):   # vertices near float64's limit: inf products are refused too
+        size = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
+        a, v = area(tris), volume(tris)
+        if not (np.isfinite(a) and a > 1e-12 * size * size):
+            return f"{len(tris)} triangles of zero area"
+        if not (np.isfinite(v) and v > 1e-12 * size ** 3):
+            return "a surface enclosing no volume (flat or degenerate triangles)"
+    return None
 
 
 def write_stl(path, tris, binary: bool = True, name: str = "sphgraph") -> None:

@@ -438,10 +438,12 @@ def test_regression_halo_order_of_mixed_types(capsys):
     # dp = 1e-300: lattice indices overflowed int64 (bounding box None: TypeError)
     ({"dp": 1e-300}, "dp"),
     # output_interval below the time's resolution: the next output time never advanced (hang)
-    ({"end_time": 1e308, "output_interval": 5e-324}, "output_interval"),
+    # (end_time's range now stops 1e308 first: the longest end_time in range keeps the case)
+    ({"end_time": 1e6, "output_interval": 1e-12}, "output_interval"),
+    ({"end_time": 1e308, "output_interval": 5e-324}, "end_time"),
     ({"end_time": 1.0, "output_interval": 1e-12}, "output_interval"),
     # 3D, 10^15 points per axis: the int64 box count wrapped around and passed max_particles
-    ({"dim": 3, "dp": 1e-9, "domain": {"min": [0.0, 0.0, 0.0], "max": [1e6, 1e6, 1e6]},
+    ({"dim": 3, "dp": 1e-6, "domain": {"min": [0.0, 0.0, 0.0], "max": [1e6, 1e6, 1e6]},
       "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [1e6, 1e6, 1e6]}], "boundary": []},
      "max_particles"),
 ])
@@ -487,10 +489,12 @@ def test_regression_tiny_probe_interval_does_not_hang(capsys):
     # set() of an unhashable axis: TypeError
     ("channel", (("domain.periodic", [[]]),), "domain.periodic"),
     # wavemaker: cosh(2kd) overflow (tiny period), a zero wave number (huge period), w^2 overflow, g = 0
-    ("flume", (("motion.0.period", 1e-9),), None),
+    ("flume", (("motion.0.period", 1e-9),), "motion[0].period"),   # below its range (sphgraph.ranges)
+    ("flume", (("motion.0.period", 1e-6),), None),                 # the shortest period in range runs
     ("flume", (("motion.0.period", 1e300),), "motion[0].period"),
     ("flume", (("motion.0.period", 1e-300),), "motion[0].period"),
-    ("flume", (("motion.0.depth", 1e-300),), "motion[0].period"),
+    ("flume", (("motion.0.depth", 1e-300),), "motion[0].depth"),
+    ("flume", (("motion.0.depth", 1e-9),), "motion[0].body"),   # in range: the stroke check answers
     ("flume", (("physics.gravity", [0.0, 0.0]),), "motion[0].type"),
     # a flap hinged above the still-water level: ValueError (exit 3)
     ("flume", (("motion.0.type", "flap"), ("motion.0.hinge", [0.05, 0.9])), "motion[0].hinge"),
@@ -498,12 +502,14 @@ def test_regression_tiny_probe_interval_does_not_hang(capsys):
     ("flume", (("motion.1.times", [math.nan, 0.01, 0.01, 0.02]),), "motion[1].times"),
     ("flume", (("motion.1.times", [0.0, 0.01, 0.01, math.inf]),), "motion[1].times"),
     # a slope's run lost next to a huge start: division by zero
-    ("flume3d", (("boundary.3.start", [2.0 ** 53, 0.0, 0.0]),), "boundary[3].length"),
+    ("flume3d", (("boundary.3.start", [2.0 ** 53, 0.0, 0.0]),), "boundary[3].start"),   # beyond the range
     # entries 10^24 spacings away: int64 lattice indices wrapped (TypeError; for a shape, an
     # error quoting wrapped coordinates -9.2e17 instead of the entry's own)
-    ("flume3d", (("boundary.1.max", [0.1, 7e23, 0.5]),), "boundary[1]"),
-    ("flume3d", (("boundary.2.radius", 1e300),), "boundary[2]: expected particles inside the domain "
-     "[-0.4, -0.2, -0.2] - [2.2, 0.9, 1.0] (extend [domain]), got an entry spanning [-1e+300, -1e+300, 0.0]"),
+    ("flume3d", (("boundary.1.max", [0.1, 7e23, 0.5]),), "boundary[1].max"),
+    ("flume3d", (("boundary.1.max", [0.1, 1e7, 0.5]),), "boundary[1]"),   # in range, far outside the domain
+    ("flume3d", (("boundary.2.radius", 1e300),), "boundary[2].radius"),
+    ("flume3d", (("boundary.2.radius", 1e7),), "boundary[2]: expected particles inside the domain "
+     "[-0.4, -0.2, -0.2] - [2.2, 0.9, 1.0] (extend [domain]), got particles spanning"),
 ])
 def test_regression_feature_keys_found_by_fuzzing(capsys, name, edits, key):
     """Inputs the feature fuzzer found that crashed (exit 3) or ran when they should not."""

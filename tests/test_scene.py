@@ -201,9 +201,9 @@ def test_with_overrides_revalidates_and_keeps_original():
     assert s2.count_particles() == (25 * 50, 101 + 2 * 75)
     assert tomllib.loads(s2.text)["dp"] == 0.04  # the text records what runs
     assert s2.name == "dambreak2d" and s2.source == s.source
-    with pytest.raises(InputError, match=r"dambreak2d\.toml: --dp: expected a number > 0, got -1"):
+    with pytest.raises(InputError, match=r"dambreak2d\.toml: --dp: expected a number >= 1e-06 and <= 100 \[m\] \(a particle spacing between 1 um and 100 m\), got -1"):
         s.with_overrides(dp=-1)
-    with pytest.raises(InputError, match=r"--end-time: expected a number > 0"):
+    with pytest.raises(InputError, match=r"--end-time: expected a number >= 1e-09 and <= 1e\+06 \[s\]"):
         s.with_overrides(end_time=0)
     with pytest.raises(InputError, match=r"physics\.kernel: expected one of"):
         s.with_overrides(kernel="gauss")
@@ -297,12 +297,12 @@ BAD = [
     ("dim float", _set("dim", 2.0), "dim", "got 2.0"),
     ("format float", _set("format", 1.0), "format", "got 1.0"),
     ("dp bool", _set("dp", True), "dp", "got True"),
-    ("dp string", _set("dp", "0.01"), "dp", "a number > 0"),
+    ("dp string", _set("dp", "0.01"), "dp", "a number >= 1e-06 and <= 100 [m]"),
     ("dp zero", _set("dp", 0), "dp", "got 0"),
     ("dp missing", _set("dp", None), "dp", "got nothing"),
-    ("end_time negative", _set("end_time", -1.0), "end_time", "a number > 0"),
-    ("output_interval 0", _set("output_interval", 0), "output_interval", "a number > 0"),
-    ("name with slash", _set("name", "a/b"), "name", "a name of letters"),
+    ("end_time negative", _set("end_time", -1.0), "end_time", "a number >= 1e-09 and <= 1e+06 [s]"),
+    ("output_interval 0", _set("output_interval", 0), "output_interval", "a number >= 1e-12"),
+    ("name with slash", _set("name", "a/b"), "name", "a name of at most 128 letters"),
     ("domain min length", _set("domain.min", [0, 0, 0]), "domain.min", "a list of 2 numbers"),
     ("domain min >= max", _set("domain.max", [4.0, -1.0]), "domain.max", "every coordinate > domain.min"),
     ("domain unknown", _set("domain.size", [1, 1]), "domain.size", "one of: min, max, origin"),
@@ -330,13 +330,13 @@ BAD = [
     ("diffusion enum", _set("physics.diffusion", "full"), "physics.diffusion", '"fourtakas-full"'),
     ("integrator enum", _set("physics.integrator", "euler"), "physics.integrator", '"verlet", "symplectic"'),
     ("cell_size enum", _set("physics.cell_size", "3h"), "physics.cell_size", '"2h", "h"'),
-    ("coefh negative", _set("physics.coefh", -1.0), "physics.coefh", "a number > 0"),
+    ("coefh negative", _set("physics.coefh", -1.0), "physics.coefh", "a number >= 0.1 and <= 10"),
     ("visc negative", _set("physics.visc_alpha", -0.1), "physics.visc_alpha", "a number >= 0"),
     ("cfl > 10", _set("physics.cfl", 20.0), "physics.cfl", "<= 10"),
     ("verlet every 0", _set("physics.verlet_euler_every", 0), "physics.verlet_euler_every", ">= 1"),
     ("gravity length", _set("physics.gravity", [0, 0, -9.81]), "physics.gravity", "a list of 2 numbers"),
     ("rho bounds", _set("physics.rho_max", 600.0), "physics.rho_max", "> physics.rho_min"),
-    ("hswl zero", _set("physics.hswl", 0.0), "physics.hswl", "a number > 0"),
+    ("hswl zero", _set("physics.hswl", 0.0), "physics.hswl", "a number >= 1e-06 and <= 12000 [m]"),
     ("axis z in 2D", _set("decomposition.axis", "z"), "decomposition.axis", '"x", "y", "auto"'),
     ("hydrostatic str", _set("initial.hydrostatic", "yes"), "initial.hydrostatic", "true or false"),
     ("limits unknown", _set("limits.max_memory", 1), "limits.max_memory", "one of: max_particles"),

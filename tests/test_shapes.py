@@ -203,7 +203,7 @@ def _scene_file(tmp_path, entry, dim=3):
     ({"type": "stl", "path": "junk.stl"}, "boundary[0].path", "a binary or ASCII STL file"),
     ({"type": "stl", "path": "c.stl", "colour": 1}, "boundary[0].colour", "a known key"),
     ({"type": "stl", "path": "c.stl", "layers": 2}, "boundary[0].layers", 'no layers key with fill = "solid"'),
-    ({"type": "stl", "path": "c.stl", "scale": 0}, "boundary[0].scale", "a number > 0"),
+    ({"type": "stl", "path": "c.stl", "scale": 0}, "boundary[0].scale", "a number >= 1e-09 and <= 1e+09"),
     ({"type": "cylinder", "center": [0.5, 0.5, 0.0], "radius": 0.1}, "boundary[0].length", "a number > 0"),
     ({"type": "cylinder", "center": [0.5, 0.5, 0.0], "radius": 0.1, "length": 1, "axis": "w"},
      "boundary[0].axis", 'one of "x", "y", "z"'),

@@ -17,6 +17,14 @@ class ComputeBackend:
     default_precision = "float64"
     device_resident = False   # rows live on a device between steps (halos can go device to device)
 
+    @classmethod
+    def unavailable(cls) -> str | None:
+        """Why this backend cannot run on this machine (one line), or None when it can.
+
+        Asked at start-up before an instance exists; cheap, and it must not initialise a
+        device that is not there (the run is refused in one line, exit 2)."""
+        return None
+
     def device_name(self) -> str:
         return "cpu"
 

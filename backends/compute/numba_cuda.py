@@ -381,6 +381,14 @@ class NumbaCUDA(ComputeBackend):
         self.trace = None              # a list: timing events per task and copy (start_device_trace)
         _select_device()
 
+    @classmethod
+    def unavailable(cls) -> str | None:
+        # is_available() loads the driver library and, only where there is one, initialises it
+        if CK.SIMULATOR or cuda.is_available():
+            return None
+        return ("no usable CUDA GPU or driver (numba.cuda.is_available() is False; "
+                "NUMBA_ENABLE_CUDASIM=1 runs the simulator)")
+
     def device_name(self) -> str:
         if CK.SIMULATOR:
             return "cuda simulator"

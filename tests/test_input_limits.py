@@ -1,0 +1,276 @@
+"""Hostile input (issue 24 §1): every number in range before arithmetic, bounded file reads,
+the output folder checked first, flags that do not apply refused, the GPU check, STL meshes,
+SIGINT. Each bad input is exit 2 with one line naming file, key and expected form."""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sphgraph.cli import main
+from sphgraph.config import PhysicsConfig
+from sphgraph.ranges import FLAG_RANGES, RANGES
+from sphgraph.scene import Scene
+from sphgraph.toml_writer import dumps_toml
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE = {
+    "format": 1, "name": "lim", "dim": 2, "dp": 0.05, "end_time": 0.01,
+    "domain": {"min": [0.0, 0.0], "max": [1.0, 1.0]},
+    "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [0.3, 0.4]}],
+    "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.0, 0.8]}],
+}
+
+
+def cli(capsys, argv):
+    capsys.readouterr()
+    rc = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    return rc, err.strip().splitlines()
+
+
+def scene_file(tmp_path, d=None, text=None, name="s.toml"):
+    p = tmp_path / name
+    p.write_text(text if text is not None else dumps_toml(d))
+    return p
+
+
+def one_error(capsys, argv, *needles):
+    rc, lines = cli(capsys, argv)
+    assert rc == 2 and len(lines) == 1 and lines[0].startswith("sphgraph: error: "), lines
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+# ------------------------------------------------------------------------------ the table
+def test_docs_table_lists_every_range():
+    text = (ROOT / "docs" / "scenes.md").read_text()
+    section = text[text.index("## Ranges of numbers"):text.index("## Examples")]
+    listed = re.findall(r"^\| `([^`]+)` \|", section, re.M)
+    assert sorted(listed) == sorted(list(RANGES) + list(FLAG_RANGES))
+    assert len(listed) == len(set(listed))
+
+
+def test_every_numeric_physics_option_has_a_range():
+    for f in dataclasses.fields(PhysicsConfig):
+        if f.type in ("float", "int", "tuple | None", "float | None") or isinstance(f.default, (int, float)) \
+                and not isinstance(f.default, bool):
+            assert f"physics.{f.name}" in RANGES, f.name
+
+
+def _all_scenes():
+    paths = sorted((ROOT / "examples").glob("*.toml"))
+    paths += sorted((ROOT / "sphgraph" / "validation" / "cases").glob("*.toml"))
+    return [p for p in paths if "format = 1" in p.read_text() and "[[fluid]]" in p.read_text()]
+
+
+@pytest.mark.parametrize("path", _all_scenes(), ids=lambda p: p.stem)
+def test_every_key_the_checker_meets_has_a_range(path):
+    """A number without a row in sphgraph.ranges raises LookupError (an internal error): every
+    shipped scene, with every feature they use (shapes, motion, damping), validates."""
+    Scene.from_toml(path)
+
+
+def test_feature_scenes_of_the_fuzzer_validate():
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_fuzz import FEATURE_BASES
+    for name, d in FEATURE_BASES.items():
+        Scene.from_dict(copy.deepcopy(d), source=f"<{name}>")
+
+
+# ------------------------------------------------------------------------------ numbers
+@pytest.mark.parametrize("patch,key", [
+    ({"physics": {"coefh": 1e308}}, "physics.coefh"),
+    ({"physics": {"coefh": 1e-300}}, "physics.coefh"),
+    ({"physics": {"coefsound": 5e-324}}, "physics.coefsound"),
+    ({"physics": {"coefsound": 2 ** 63}}, "physics.coefsound"),
+    ({"physics": {"gravity": [0.0, -1e30]}}, "physics.gravity"),
+    ({"physics": {"hswl": 1e300}}, "physics.hswl"),
+    ({"physics": {"rho0": float("nan")}}, "physics.rho0"),
+    ({"physics": {"verlet_euler_every": 10 ** 30}}, "physics.verlet_euler_every"),
+    ({"boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.0, 0.8], "layers": 10 ** 6}]},
+     "boundary[0].layers"),
+    ({"domain": {"min": [0.0, 0.0], "max": [1e300, 1.0]}}, "domain.max"),
+    ({"dp": 2.0}, "dp"),                         # larger than the domain's smallest side
+    ({"name": "n" * 5000}, "name"),
+])
+def test_numbers_out_of_range_are_one_line(tmp_path, capsys, patch, key):
+    d = copy.deepcopy(BASE)
+    d.update(patch)
+    line = one_error(capsys, ["run", scene_file(tmp_path, d), "--out", tmp_path / "o"], f": {key}: expected")
+    assert len(line) < 400
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_400_digit_dp_is_refused(tmp_path, capsys):
+    text = dumps_toml(BASE).replace("dp = 0.05", "dp = 1" + "0" * 400)
+    one_error(capsys, ["run", scene_file(tmp_path, text=text), "--out", tmp_path / "o"], ": dp: expected a number")
+
+
+# ------------------------------------------------------------------------------ files
+@pytest.mark.parametrize("what", ["scene", "schedule", "stl"])
+def test_dev_zero_is_refused_before_reading(tmp_path, capsys, what):
+    d = copy.deepcopy(BASE)
+    argv = ["run", scene_file(tmp_path, d), "--out", tmp_path / "o"]
+    if what == "scene":
+        argv[1] = "/dev/zero"
+    elif what == "schedule":
+        argv += ["--schedule", "/dev/zero"]
+    else:
+        d.update(dim=3, domain={"min": [0.0] * 3, "max": [1.0] * 3},
+                 fluid=[{"type": "box", "min": [0.0] * 3, "max": [0.3] * 3}], boundary=[])
+        d["boundary"] = [{"type": "stl", "path": "/dev/zero"}]
+        argv[1] = scene_file(tmp_path, d)
+    t0 = time.perf_counter()
+    one_error(capsys, argv, "expected a regular", "character device")
+    assert time.perf_counter() - t0 < 5
+
+
+def test_a_fifo_scene_does_not_block(tmp_path, capsys):
+    fifo = tmp_path / "s.toml"
+    os.mkfifo(fifo)
+    one_error(capsys, ["run", fifo, "--out", tmp_path / "o"], "FIFO")
+
+
+def test_toml_nested_5000_deep_and_binary_files(tmp_path, capsys):
+    deep = "format = 1\nx = " + "[" * 5000 + "]" * 5000 + "\n"
+    one_error(capsys, ["run", scene_file(tmp_path, text=deep), "--out", tmp_path / "o"], "nested")
+    mid = "format = 1\nx = " + "[" * 40 + "]" * 40 + "\n"     # parses, then refused by depth
+    one_error(capsys, ["run", scene_file(tmp_path, text=mid, name="m.toml"), "--out", tmp_path / "o"], "nested")
+    binary = tmp_path / "b.toml"
+    binary.write_bytes(bytes(range(256)) * 4)
+    one_error(capsys, ["run", scene_file(tmp_path, BASE), "--schedule", binary, "--out", tmp_path / "o"],
+              "expected a UTF-8 schedule file")
+    big = tmp_path / "big.toml"
+    with open(big, "wb") as f:
+        f.truncate(5 << 20)
+    one_error(capsys, ["run", big, "--out", tmp_path / "o"], "at most 4194304 bytes")
+
+
+# ------------------------------------------------------------------------------ output folder
+def test_output_folder_checked_before_any_work(tmp_path, capsys):
+    s = scene_file(tmp_path, BASE)
+    one_error(capsys, ["run", s, "--out", ""], "--out: expected an output folder path")
+    (tmp_path / "f").write_text("x")
+    one_error(capsys, ["run", s, "--out", tmp_path / "f" / "o"], "under the file")
+    one_error(capsys, ["run", s, "--out", tmp_path / "f"], "expected a folder")
+    one_error(capsys, ["run", s, "--out", tmp_path / ("n" * 300)], "at most 255 bytes")
+    if os.path.isdir("/proc/self"):
+        one_error(capsys, ["run", s, "--out", "/proc/self/sphgraph-out"], "can be created")
+    assert sorted(os.listdir(tmp_path)) == ["f", "s.toml"]   # no probe folder left
+
+
+# ------------------------------------------------------------------------------ flags
+@pytest.mark.parametrize("flags,needle", [
+    (["--seed", "-1", "--comm", "mock", "--ranks", "2"], "--seed: expected an integer >= 0"),
+    (["--loss", "0.1"], "--loss: expected --comm mock"),
+    (["--duplicate", "0.1", "--comm", "mpi"], "--duplicate: expected --comm mock"),
+    (["--ranks", "2"], "--ranks 2: expected 1 with --comm single"),
+    (["--watchdog", "5"], "--watchdog: expected --comm mock or --comm mpi"),
+    (["--ranks", "1000000", "--comm", "mock"], "--ranks: expected an integer >= 1 and <= 4096"),
+    (["--ranks", "500", "--comm", "mock"], "expected at most"),
+    (["--loss", "nan", "--comm", "mock", "--ranks", "2"], "--loss: expected a number >= 0"),
+    (["--max-steps", "0"], "--max-steps: expected an integer >= 1"),
+    (["--dp", "inf"], "--dp: expected a number >= 1e-06"),
+])
+def test_flags_that_do_not_apply_or_are_out_of_range(tmp_path, capsys, flags, needle):
+    t0 = time.perf_counter()
+    one_error(capsys, ["run", scene_file(tmp_path, BASE), "--out", tmp_path / "o", *flags], needle)
+    assert time.perf_counter() - t0 < 5
+    assert not (tmp_path / "o").exists()
+
+
+def test_ranks_1_with_comm_single_runs(tmp_path, capsys):
+    rc, lines = cli(capsys, ["run", scene_file(tmp_path, BASE), "--out", tmp_path / "o", "--ranks", "1",
+                             "--comm", "single", "--max-steps", "1", "--quiet"])
+    assert rc == 0, lines
+
+
+def test_no_gpu_is_one_line_within_a_second(tmp_path):
+    """On a machine without a GPU (the CI's), `--backend numba-cuda` is refused by the backend's
+    declared capability check at start-up, without initialising CUDA."""
+    from numba import cuda
+    if cuda.is_available() or os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
+        pytest.skip("a GPU (or the simulator) is here: the backend can run")
+    s = scene_file(tmp_path, BASE)
+    cmd = [sys.executable, "-m", "sphgraph", "run", str(s), "--backend", "numba-cuda", "--out", str(tmp_path / "o")]
+    subprocess.run(cmd, capture_output=True, timeout=60)   # warm the file cache: the limit is for the check
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    wall = time.perf_counter() - t0
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "--backend numba-cuda: expected a machine" in lines[0], p.stderr
+    assert wall < 2.5, wall   # the whole process; the check itself is microseconds (no driver to load)
+
+
+# ------------------------------------------------------------------------------ STL
+def _cube():
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)
+    f = [(0, 2, 1), (0, 3, 2), (4, 5, 6), (4, 6, 7), (0, 1, 5), (0, 5, 4), (1, 2, 6), (1, 6, 5),
+         (2, 3, 7), (2, 7, 6), (3, 0, 4), (3, 4, 7)]
+    return v[np.array(f)] * 0.3 + 0.3
+
+
+def _stl_scene(tmp_path, tris):
+    from sphgraph.stl import write_stl
+    with np.errstate(all="ignore"):   # the normals of a hostile mesh (the reader ignores them)
+        write_stl(tmp_path / "m.stl", tris)
+    d = copy.deepcopy(BASE)
+    d.update(dim=3, domain={"min": [0.0] * 3, "max": [1.0] * 3},
+             fluid=[{"type": "box", "min": [0.0] * 3, "max": [0.2] * 3}],
+             boundary=[{"type": "stl", "path": "m.stl"}])
+    return scene_file(tmp_path, d)
+
+
+def test_stl_with_inf_vertices_is_one_line_without_numpy_warnings(tmp_path, capfd):
+    tris = _cube()
+    tris[3, 1, 2] = np.inf
+    s = _stl_scene(tmp_path, tris)
+    capfd.readouterr()
+    rc = main(["run", str(s), "--out", str(tmp_path / "o")])
+    err = capfd.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "non-finite coordinates" in err[0], err
+
+
+def test_stl_of_degenerate_triangles_is_refused(tmp_path, capsys):
+    tris = _cube()
+    flat = tris.copy()
+    flat[..., 2] = 0.3            # every vertex in one plane: combinatorially closed, no area inside
+    one_error(capsys, ["run", _stl_scene(tmp_path, flat), "--out", tmp_path / "o"], "enclosing")
+    a, b, c, e = ([x, 0.5, 0.5] for x in (0.3, 0.4, 0.5, 0.6))   # a tetrahedron on one line
+    line = np.array([[a, b, c], [a, e, b], [a, c, e], [b, e, c]], float)   # closed, zero area
+    (tmp_path / "m.stl").unlink()
+    one_error(capsys, ["run", _stl_scene(tmp_path, line), "--out", tmp_path / "o"], "zero area")
+    (tmp_path / "m.stl").unlink()
+    rc, lines = cli(capsys, ["run", _stl_scene(tmp_path, tris), "--out", tmp_path / "ok", "--max-steps", "1",
+                             "--quiet"])
+    assert rc in (0, 1), lines   # the closed cube itself is accepted (and runs; the water may leave)
+
+
+# ------------------------------------------------------------------------------ SIGINT
+@pytest.mark.parametrize("after", [0.05, 0.6, 2.5])
+def test_sigint_at_any_moment_is_130_and_one_line(tmp_path, after):
+    """Start-up (imports), scene and compilation, stepping: exit 130 and one line."""
+    d = copy.deepcopy(BASE)
+    d.update(end_time=5.0, dp=0.02)
+    s = scene_file(tmp_path, d)
+    p = subprocess.Popen([sys.executable, "-m", "sphgraph", "run", str(s), "--out", str(tmp_path / "o"), "--quiet"],
+                         stderr=subprocess.PIPE, text=True)
+    time.sleep(after)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    lines = err.strip().splitlines()
+    assert p.returncode == 130 and len(lines) == 1 and "interrupted" in lines[0], (p.returncode, err)
+    if (tmp_path / "o" / "frames").exists():
+        assert not [n for n in os.listdir(tmp_path / "o" / "frames") if n.endswith(".tmp")]
