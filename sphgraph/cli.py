@@ -6,17 +6,28 @@ error (short message; traceback in a log file).
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import signal
 import sys
-import tempfile
-import threading
-import traceback
 
-from .errors import CommError, DiskFullError, InputError, NumericalError, SphgraphError
-from .ranges import check_flag
+
+def _sigint_at_start(signum, frame):
+    # start-up of the command (imports, before main's handlers): nothing is written yet
+    os.write(2, b"sphgraph: interrupted (SIGINT) during start-up\n")
+    os._exit(130)
+
+
+if os.path.basename(sys.argv[0]) == "sphgraph":   # the console script, not an importing library
+    signal.signal(signal.SIGINT, _sigint_at_start)
+
+import argparse  # noqa: E402 - after the start-up SIGINT handler
+import json  # noqa: E402
+import tempfile  # noqa: E402
+import threading  # noqa: E402
+import traceback  # noqa: E402
+
+from .errors import CommError, DiskFullError, InputError, NumericalError, SphgraphError  # noqa: E402
+from .ranges import check_flag  # noqa: E402
 
 
 class _Parser(argparse.ArgumentParser):

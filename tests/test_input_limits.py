@@ -259,7 +259,7 @@ def test_stl_of_degenerate_triangles_is_refused(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------ SIGINT
-@pytest.mark.parametrize("after", [0.05, 0.6, 2.5])
+@pytest.mark.parametrize("after", [0.15, 0.6, 2.5])
 def test_sigint_at_any_moment_is_130_and_one_line(tmp_path, after):
     """Start-up (imports), scene and compilation, stepping: exit 130 and one line."""
     d = copy.deepcopy(BASE)
