@@ -10,6 +10,7 @@ def _sigint_at_start(signum, frame):
 
 signal.signal(signal.SIGINT, _sigint_at_start)
 
-from .cli import main  # noqa: E402 - after the start-up SIGINT handler
+from . import cli  # noqa: E402 - after the start-up SIGINT handler
 
-raise SystemExit(main())
+cli.COMMAND = True
+raise SystemExit(cli.main())

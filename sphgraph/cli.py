@@ -17,7 +17,9 @@ def _sigint_at_start(signum, frame):
     os._exit(130)
 
 
-if os.path.basename(sys.argv[0]) == "sphgraph":   # the console script, not an importing library
+# the console script (python -m sphgraph sets it too), not a library importing this module
+COMMAND = os.path.basename(sys.argv[0]) == "sphgraph"
+if COMMAND:
     signal.signal(signal.SIGINT, _sigint_at_start)
 
 import argparse  # noqa: E402 - after the start-up SIGINT handler
@@ -452,12 +454,15 @@ def main(argv=None) -> int:
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.default_int_handler)   # KeyboardInterrupt, wherever it lands
     try:
-        return _main(argv)
+        code = _main(argv)
     except KeyboardInterrupt:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # a second ^C must not interrupt the report
         print("sphgraph: interrupted (SIGINT); output written so far stays readable", file=sys.stderr)
         return 130
+    if COMMAND and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)   # the work is done: ^C in the exit must not print
+    return code
 
 
 def _root() -> bool:

@@ -24,7 +24,8 @@ Frame file ``frames/frame_NNNNNN.h5``
 
 Why it survives SIGKILL: nothing is ever modified in place. A frame is written to
 a temporary file, fsynced and renamed over its final name (rename is atomic on
-POSIX). The master is small (links, attrs, timing), so it is rebuilt from the
+POSIX; :func:`sphgraph.files.h5_atomic`, which also turns a full disk into one clean
+error). The master is small (links, attrs, timing), so it is rebuilt from the
 writer's memory into a temporary file and renamed over ``output.h5`` after each
 frame; the XDMF likewise. A kill at any moment leaves the previous complete
 master, which links only frames that were complete before it was written. The
@@ -45,7 +46,7 @@ import h5py
 import numpy as np
 
 from .errors import InputError
-from .files import guard_write, h5_atomic
+from .files import CHECKPOINT_LIMIT, check_regular, guard_write, h5_atomic
 from .xdmf import FieldSpec, FrameSpec, write_xdmf
 
 __all__ = [
@@ -77,37 +78,6 @@ def _frame_name(index: int) -> str:
 
 def _frame_relpath(index: int) -> str:
     return f"{FRAMES_DIR}/frame_{index:06d}.h5"
-
-
-def _fsync_file(path: str) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_dir(path: str) -> None:
-    # Makes the rename itself durable; not every platform can open a directory.
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _commit(tmp: str, final: str, fsync: bool) -> None:
-    """Atomically move a finished temporary file to its final name."""
-    if fsync:
-        _fsync_file(tmp)
-    os.replace(tmp, final)
-    if fsync:
-        _fsync_dir(os.path.dirname(final) or ".")
 
 
 def _to_attr(value):
@@ -500,10 +470,14 @@ class OutputWriter:
         InputError
             No readable ``output.h5`` in `out_dir`.
         """
-        with _open_master(out_dir) as f:
-            attrs = {k: _from_attr(v) for k, v in f.attrs.items()}
-            timing = _read_timing_group(f, decode=False)
-            groups = {k: _split_group(_read_tree(f[k])) for k in f.keys() if k not in _RESERVED}
+        try:
+            with _open_master(out_dir) as f:
+                attrs = {k: _from_attr(v) for k, v in f.attrs.items()}
+                timing = _read_timing_group(f, decode=False)
+                groups = {k: _split_group(_read_tree(f[k])) for k in f.keys() if k not in _RESERVED}
+        except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:   # a damaged master
+            raise InputError(f"{out_dir}: {MASTER_NAME}: expected a readable sphgraph output, got "
+                             f"{type(e).__name__}: {e}") from None
         try:
             dim, precision = int(attrs["dim"]), str(attrs["precision"])
         except KeyError as e:
@@ -511,10 +485,14 @@ class OutputWriter:
                              f"expected sphgraph output") from None
         w = cls(out_dir, attrs, dim, precision, fsync=fsync, _existing=True)
         for index, time, step in list_frames(out_dir):
-            with h5py.File(w.frame_path(index), "r") as ff:
-                g = ff[FRAME_GROUP]
-                fields = tuple(FieldSpec(k, g[k].dtype, g[k].shape[1:]) for k in g.keys())
-                n = g["id"].shape[0]
+            try:
+                with h5py.File(w.frame_path(index), "r") as ff:
+                    g = ff[FRAME_GROUP]
+                    fields = tuple(FieldSpec(k, g[k].dtype, g[k].shape[1:]) for k in g.keys())
+                    n = g["id"].shape[0]
+            except (OSError, KeyError, ValueError, RuntimeError) as e:
+                raise InputError(f"{w.frame_path(index)}: frame {index}: expected a readable frame, got "
+                                 f"{type(e).__name__}: {e}") from None
             w._frames[index] = FrameSpec(index, time, _frame_relpath(index), FRAME_GROUP, n, fields)
             w._frame_meta[index] = (time, step)
         w._timing_done = timing
@@ -648,6 +626,7 @@ def _open_master(out_dir) -> h5py.File:
     path = os.path.join(os.fspath(out_dir), MASTER_NAME)
     if not os.path.exists(path):
         raise InputError(f"{out_dir}: no {MASTER_NAME}: expected a sphgraph output directory")
+    check_regular(path, CHECKPOINT_LIMIT, "HDF5 output file")   # a FIFO would block h5py
     try:
         return h5py.File(path, "r")
     except OSError as e:
