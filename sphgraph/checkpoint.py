@@ -43,6 +43,7 @@ from . import __version__
 from .errors import InputError
 from .files import CHECKPOINT_LIMIT, check_regular, disk_full, h5_atomic, is_no_space, parse_toml
 from .particles import Particles
+from .ranges import check_flag
 
 CKPT_DIR = "checkpoints"
 KEEP = 2
@@ -86,7 +87,7 @@ def parse_walltime(value) -> float | None:
         w = float("nan")
     if isinstance(value, bool) or not (math.isfinite(w) and w > 0):
         raise InputError(f"--walltime: expected a number of seconds > 0, got {value!r}")
-    return w
+    return check_flag("--walltime", w)
 
 
 # --------------------------------------------------------------------------- file format
