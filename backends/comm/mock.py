@@ -55,6 +55,7 @@ import numpy as np
 from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.errors import SphgraphError as InternalError
 from sphgraph.registry import register
+from sphgraph.wire import WirePayload
 
 from sphgraph.perfmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
                                 pairs_per_particle, step_pricing, task_features)
@@ -104,7 +105,7 @@ def payload_nbytes(payload) -> int:
     """Bytes of the numpy arrays a payload carries (Halo, Particles, array, None)."""
     if payload is None:
         return 0
-    if hasattr(payload, "to_wire"):      # a device edge (cuda_halo): the rows move device to device
+    if isinstance(payload, WirePayload):     # e.g. a device edge: the rows move device to device
         return int(payload.nbytes())
     if isinstance(payload, np.ndarray):
         return int(payload.nbytes)

@@ -34,6 +34,7 @@ import numpy as np
 
 from sphgraph.errors import InputError
 from sphgraph.registry import register
+from sphgraph.wire import WirePayload, decode, encode
 
 from .base import CommBackend, SeqCheck
 
@@ -50,12 +51,12 @@ def _mpi():
     return MPI
 
 
-# payload types and their arrays, in wire order (_WIRE: an object that packs itself,
-# cuda_halo.DeviceEdge of --halo-transport ipc, one uint8 array)
+# payload types and their arrays, in wire order (_WIRE: a sphgraph.wire.WirePayload, which
+# packs itself: its code, then its uint8 array)
 _NONE, _HALO, _PARTICLES, _ARRAY, _WIRE = 0, 1, 2, 3, 4
 _FIELDS = {_HALO: ("pos", "vel", "rho", "kind"),
            _PARTICLES: ("id", "kind", "pos", "vel", "rho", "vel_m1", "rho_m1"),
-           _ARRAY: ("a",), _WIRE: ("a",)}
+           _ARRAY: ("a",), _WIRE: ("code", "a")}
 _DTYPES = [np.dtype(x) for x in ("<f8", "<f4", "<i8", "<i4", "|i1", "|u1", "<i2", "|b1")]
 _DCODE = {d: i for i, d in enumerate(_DTYPES)}
 
@@ -71,7 +72,7 @@ def _kind_of(payload) -> int:
         return _PARTICLES
     if isinstance(payload, np.ndarray):
         return _ARRAY
-    if hasattr(payload, "to_wire"):
+    if isinstance(payload, WirePayload):
         return _WIRE
     raise TypeError(f"--comm mpi: cannot send a {type(payload).__name__}")
 
@@ -84,7 +85,8 @@ def pack(payload, seq: int = 0, dest: int | None = None) -> np.ndarray:
     kind = _kind_of(payload)
     names = _FIELDS.get(kind, ())
     if kind == _WIRE:
-        arrays = [payload.to_wire(dest)]
+        code, data = encode(payload, dest)
+        arrays = [np.array([code], np.int64), data]
     else:
         arrays = [np.ascontiguousarray(payload if kind == _ARRAY else getattr(payload, f)) for f in names]
     header = [kind, len(arrays), int(seq)]
@@ -128,8 +130,7 @@ def unpack(buf: np.ndarray):
     if kind == _ARRAY:
         return arrays[0]
     if kind == _WIRE:
-        from ..compute.cuda_halo import DeviceEdge
-        return DeviceEdge.from_wire(arrays[0])
+        return decode(int(arrays[0][0]), arrays[1])
     fields = dict(zip(_FIELDS[kind], arrays))
     return Halo(**fields) if kind == _HALO else Particles(**fields)
 

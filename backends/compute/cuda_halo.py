@@ -36,6 +36,7 @@ import numpy as np
 from numba import cuda
 
 from sphgraph.errors import CommError
+from sphgraph.wire import WirePayload, codec
 
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
@@ -44,11 +45,14 @@ _WIRE = 2            # layout version of DeviceEdge.to_wire
 _HEAD = 20           # int64 words before the pickled IPC handle
 
 
-class DeviceEdge:
+@codec
+class DeviceEdge(WirePayload):
     """An edge message of the ipc transport; once received it is the halo: at most `m`
     rows (`m0` of them fluid at most: bounds; the cell starts hold the counts), cell grid
     `dims` at `origin` (cells of `size`; `ncells` per kind), device views `pos4`, `vel4`,
     `kind`, `start` of the sender's buffer."""
+
+    wire_code = 1
 
     def __init__(self, src, slot, version, gen, m0, m, nch, dims, origin, size, moved, dim, dtype, nb,
                  array=None, handle=None, owner=None, event=None):
