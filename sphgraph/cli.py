@@ -285,7 +285,23 @@ def cmd_run(args) -> int:
         print(f"{res.steps} steps to t = {res.time:.4f} s in {res.wall_s:.1f} s "
               f"({res.steps_per_s:.0f} steps/s after the first step; first step {res.compile_s:.2f} s); "
               f"{res.particles} particles; output {res.out_dir}/output.h5", file=sys.stderr)
+    _print_exclusions(res, args.quiet)
     return 0
+
+
+def _print_exclusions(res, quiet) -> None:
+    """The run's exclusions (/exclusions of output.h5), one line: always when there are any."""
+    from .errors import InputError
+    from .features import exclusion_summary
+    from .io import read_group
+    if res.out_dir is None or not _is_root(res):
+        return
+    try:
+        rows = read_group(res.out_dir, "exclusions")
+    except InputError:      # [domain] exclude_outside = false: no group
+        return
+    if len(rows["id"]) or not quiet:
+        print(f"sphgraph: {exclusion_summary(rows, res.fluid_particles)}", file=sys.stderr)
 
 
 def _is_root(res):

@@ -27,6 +27,12 @@ SHIFTINGS = ("none", "nobound", "nofixed", "full")
 # wall treatment: dynamic boundaries (DualSPHysics DBC) or modified DBC (English et al. 2019,
 # sphgraph.physics.mdbc; "mdbc-noslip" also mirrors the fluid velocity), DualSPHysics SlipMode
 BOUNDARIES = ("dbc", "mdbc", "mdbc-noslip")
+# how the Verlet step advances the density-diffusion term (sphgraph.physics.interact,
+# diffusion_coef): "leapfrog" as DualSPHysics (rho_m1 + 2 dt ar: unstable for a diffusion
+# term, its odd-even mode grows between the Euler steps), "dufort-frankel" (DuFort &
+# Frankel 1953: the particle's own density in the term is the mean of the new and the
+# previous one, unconditionally stable for diffusion)
+DIFFUSION_TIMES = ("leapfrog", "dufort-frankel")
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
@@ -35,7 +41,7 @@ P_CUBIC_A24 = 19
 P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B = 20, 21, 22, 23, 24  # series of (1+y)^(1/gamma) - 1; rho0/B
 P_INV_H, P_BWH, P_YMAX, P_COUNT = 25, 26, 27, 28  # P_YMAX: the largest |y| of the series (fluid_pair)
 # opt indices
-O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_COUNT = range(5)
+O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_COUNT = range(6)
 # opt values
 K_WENDLAND, K_CUBIC = 0, 1
 D_NONE, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL = 0, 1, 2, 3
@@ -67,6 +73,7 @@ class PhysicsConfig:
     shifting_coef: float = -2.0         # DualSPHysics ShiftCoef (default -2): A = -coef in Lind et al.
     shifting_tfs: float = 0.0           # DualSPHysics ShiftTFS: free-surface threshold of div r; 0 = off
     boundary: str = "dbc"               # wall treatment (BOUNDARIES); mDBC: sphgraph.physics.mdbc
+    diffusion_time: str = "leapfrog"    # Verlet's density-diffusion step (DIFFUSION_TIMES)
 
     @classmethod
     def field_names(cls):
@@ -145,6 +152,7 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     opt[O_KERNEL] = KERNELS.index(cfg.kernel)
     opt[O_DDT] = DIFFUSIONS.index(cfg.diffusion) if cfg.delta > 0 else D_NONE
     opt[O_LAMINAR] = 1 if cfg.laminar_nu > 0 else 0
+    opt[O_DDT_DF] = 1 if (cfg.diffusion_time == "dufort-frankel" and opt[O_DDT] != D_NONE) else 0
     cell = 2.0 * h if cfg.cell_size == "2h" else h
     return Constants(dim=dim, dp=dp, h=h, c0=c0, B=B, mass_fluid=mass, mass_bound=mass,
                      gravity=g, cell_size=cell, prm=prm, opt=opt)

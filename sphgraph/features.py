@@ -10,7 +10,9 @@ solver calls it at fixed points:
 * each force task: :meth:`after_forces` -- ``forces_interior`` adds the periodic-image
   force part; with shifting, every force task adds its source set's shifting sums;
 * ``integrate``: :meth:`before_integrate` / :meth:`after_integrate` (shifting);
-* the end-of-step check: :meth:`exclude` removes and counts particles out of bounds.
+* the end-of-step check: :meth:`exclude` removes and counts particles out of bounds
+  (``[domain] exclude_outside``, on by default as in DualSPHysics) and stops the run once
+  they pass ``exclude_max_share`` of its fluid particles.
 
 A scene without any of them gets ``Features.none`` behaviour: no extra task, no work.
 """
@@ -44,13 +46,19 @@ class Features:
 
     @property
     def active(self) -> bool:
-        return self.motion_task or self.exclude_outside or self.scene.physics.shifting != "none"
+        ph = self.scene.physics
+        return (self.motion_task or self.exclude_outside or ph.shifting != "none"
+                or ph.diffusion_time != "leapfrog")
 
     def attach(self, sim, particles) -> None:
         """Build the features from the scene's initial ``particles`` and hook them to every rank."""
         from .motion import Motion
         from .waves import Damping
         s = self.scene
+        if s.physics.diffusion_time != "leapfrog" and sim.compute.name != "numba-cpu":
+            from .errors import InputError
+            raise InputError(f"{s.source}: physics.diffusion_time: {s.physics.diffusion_time!r} runs with "
+                             f"--backend numba-cpu (or use diffusion_time = \"leapfrog\"), got {sim.compute.name}")
         self.motion = Motion.from_scene(s, particles)
         self.damping = Damping.from_scene(s)
         if s.periodic:
@@ -95,13 +103,20 @@ class Features:
 
     def exclude(self, sim) -> None:
         """Remove particles outside the domain (non-periodic axes) or, fluid only, outside
-        [rho_min, rho_max]; count them in ``state.extra["excluded_ids"]``."""
+        [rho_min, rho_max]; count them in ``state.extra["excluded_ids"]``. Each rank's rows
+        are scanned on the host only when the backend's own end-of-step check finds a row out
+        of bounds (a device backend keeps its rows on the device otherwise). Raises
+        `NumericalError` once the run's exclusions pass ``domain.exclude_max_share`` of its
+        fluid particles."""
         if not self.exclude_outside:
             return
         ph = self.scene.physics
         for c in sim.contexts:
             st = c.state
-            p = st.particles
+            bad = sim.compute.check(st, sim.lo, sim.hi)
+            if bad is None or bad[1] not in (2, 3):   # NaN (1) is the solver's to report
+                continue
+            p = sim.compute.host_rows(st)
             x = np.asarray(p.pos)
             out = np.zeros(p.n, bool)
             for a in range(p.dim):
@@ -119,6 +134,28 @@ class Features:
             st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
             st.particles = p.take(np.nonzero(cause == 0)[0])
             sim.compute.prepare(st)
+        self._check_share(sim)
+
+    def _check_share(self, sim) -> None:
+        """Stop (NumericalError, exit 1) when the exclusions of the whole run, every rank's,
+        pass ``exclude_max_share`` of its fluid particles: past that the run no longer holds
+        the scene's water (docs/features.md, "Open boundaries")."""
+        n = sum(len(c.state.extra.get("excluded_ids", ())) for c in sim.contexts)
+        if len(sim.comm.local_ranks) < sim.nranks:    # MPI: one rank per process
+            n = int(sim.comm.allreduce(n, "sum"))
+        limit = self.scene.exclude_max_share * sim.n_fluid
+        if n <= limit:
+            return
+        from .errors import NumericalError
+        from .solver import CAUSES
+        last = self.excluded[-1] if self.excluded else None
+        what = (f": the last, particle id {last[2]} ({CAUSES[last[3]]})" if last is not None
+                and last[0] == sim.step_count else "")
+        raise NumericalError(
+            f"step {sim.step_count} (t = {sim.time:.6g} s): {n} particles excluded, "
+            f"{100.0 * n / max(sim.n_fluid, 1):.3g} % of the run's {sim.n_fluid} fluid particles, above "
+            f"domain.exclude_max_share = {100.0 * self.scene.exclude_max_share:g} %{what}",
+            step=sim.step_count, particle_id=None if not what else last[2], cause="exclusions")
 
     def restore_exclusions(self, cols: dict, step: int, root: bool) -> None:
         """A restart: the checkpoint's exclusions (every rank's, up to its `step`) are the
@@ -144,3 +181,15 @@ class Features:
                 "time": np.array([r[1] for r in rows], float),
                 "id": np.array([r[2] for r in rows], np.int64),
                 "cause": np.array([r[3] for r in rows], np.int8)}
+
+
+def exclusion_summary(rows: dict, n_fluid: int) -> str:
+    """One line for the end of a run: how many particles were excluded, their share of the
+    fluid and the count by cause (`rows`: the /exclusions columns)."""
+    from .solver import CAUSES
+    n = len(rows["id"])
+    causes, counts = np.unique(np.asarray(rows["cause"]), return_counts=True)
+    by = ", ".join(f"{k} {CAUSES[int(c)]}" for c, k in zip(causes, counts))
+    span = f", steps {int(rows['step'][0])}-{int(rows['step'][-1])}" if n else ""
+    return (f"excluded {n} particles ({100.0 * n / max(n_fluid, 1):.3g} % of {n_fluid} fluid"
+            + (f"; {by}" if n else "") + f"{span})")

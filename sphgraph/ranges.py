@@ -32,6 +32,7 @@ RANGES = {
     "end_time": (1e-9, 1e6, "s", "simulated time up to 11.6 days"),
     "output_interval": (1e-12, 1e6, "s", "time between frames up to 11.6 days"),
     "domain.min": _C, "domain.max": _C, "domain.origin": _C,
+    "domain.exclude_max_share": (0.0, 1.0, "", "share of the fluid particles excluded before the run stops"),
     "physics.coefh": (0.1, 10.0, "", "h = coefh*sqrt(dim)*dp; DualSPHysics uses 0.75-1.5"),
     "physics.coefsound": (0.1, 1e4, "", "c0 = coefsound*sqrt(g*hswl); 10-40 is usual"),
     "physics.gamma": (1.0, 20.0, "", "Tait exponent: 7 for water, 1.4 for air"),

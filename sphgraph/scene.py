@@ -91,7 +91,8 @@ class Scene(SceneParticles):
     boundary: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)
     periodic: tuple = ()            # axes ("x", "y", "z") that are periodic over [domain]
-    exclude_outside: bool = False   # particles leaving the domain / density bounds are excluded
+    exclude_outside: bool = True    # particles leaving the domain / density bounds are excluded
+    exclude_max_share: float = 1e-3  # ... until they pass this share of the fluid particles
     _cache: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self):
@@ -187,8 +188,8 @@ class Scene(SceneParticles):
         }
         if self.periodic:
             d["domain"]["periodic"] = list(self.periodic)
-        if self.exclude_outside:
-            d["domain"]["exclude_outside"] = True
+        d["domain"]["exclude_outside"] = bool(self.exclude_outside)
+        d["domain"]["exclude_max_share"] = float(self.exclude_max_share)
         d.update(copy.deepcopy(self.extra))
         return d
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes
-from .config import BOUNDARIES, CELL_SIZES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS, PhysicsConfig
+from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS,
+                     PhysicsConfig)
 from .errors import InputError
 from .ranges import describe, finite, in_range, is_real
 
@@ -44,7 +45,8 @@ _ENTRY_KEYS = {
 }
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
-                 "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES}
+                 "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES,
+                 "diffusion_time": DIFFUSION_TIMES}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
@@ -164,7 +166,7 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
                       "(at most 10^8 frames)", out_dt)
 
     dom = c.table("domain", c.require("", d, "domain"),
-                  ("min", "max", "origin", "periodic", "exclude_outside"))
+                  ("min", "max", "origin", "periodic", "exclude_outside", "exclude_max_share"))
     dmin = c.vector("domain.min", c.require("domain", dom, "min"), dim)
     dmax = c.vector("domain.max", c.require("domain", dom, "max"), dim)
     if not np.all(dmax > dmin):
@@ -181,7 +183,8 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
             or len(set(periodic)) != len(periodic)):   # set() after the type check: [[]] is unhashable
         raise c.error("domain.periodic", "a list of distinct axes among "
                       + ", ".join(f'"{a}"' for a in AXES[:dim]), periodic)
-    exclude = c.boolean("domain.exclude_outside", dom.get("exclude_outside", False))
+    exclude = c.boolean("domain.exclude_outside", dom.get("exclude_outside", True))
+    share = c.number("domain.exclude_max_share", dom.get("exclude_max_share", 1e-3), ge=0, le=1)
 
     physics = _physics(c, d.get("physics", {}), dim)
     dec = c.table("decomposition", d.get("decomposition", {}), ("axis",))
@@ -228,7 +231,8 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
                   domain_min=dmin, domain_max=dmax, physics=physics,
                   decomposition_axis=axis, source=source, lattice_origin=origin,
                   hydrostatic=hydro, jitter=jitter, max_particles=maxp, fluid=fluid, boundary=boundary,
-                  extra=extra, periodic=tuple(periodic), exclude_outside=exclude)
+                  extra=extra, periodic=tuple(periodic), exclude_outside=exclude,
+                  exclude_max_share=share)
     return kwargs, text_ok
 
 
@@ -268,6 +272,9 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
     if cfg.shifting_tfs >= dim:  # the shift is scaled by (div r - tfs)/(dim - tfs)
         raise c.error("physics.shifting_tfs", f"a number >= 0 and < {dim} (0 = off; typically 1.5 "
                       "in 2D, 2.75 in 3D)", cfg.shifting_tfs)
+    if cfg.diffusion_time != "leapfrog" and cfg.integrator != "verlet":
+        raise c.error("physics.diffusion_time", '"leapfrog" with integrator = "symplectic" (the option '
+                      'is how the Verlet step advances the diffusion term)', cfg.diffusion_time)
     if cfg.gravity is None:
         cfg.gravity = tuple([0.0] * (dim - 1) + [-9.81])
     return cfg

@@ -4,7 +4,9 @@ name it from the run's *state* (never from the parameters that caused it).
 Failures (`Verdict.name`) and how each is detected:
 
 * ``blow-up``            the solver stops with `NumericalError` (NaN, a particle out of the
-                         domain, density outside [rho_min, rho_max]) or the kinetic energy
+                         domain, density outside [rho_min, rho_max]), a scene with
+                         ``[domain] exclude_outside`` removes a particle for those causes (the
+                         scenes here turn it off, so the solver names it), or the kinetic energy
                          grows by more than `energy_growth` between samples of a flow that
                          only loses energy (no inflow, gravity-free or settling).
 * ``pressure-noise``     RMS of each fluid particle's pressure minus the Shepard average of
@@ -58,7 +60,7 @@ def drop_scene(dp=0.02, coefsound=20.0, cfl=0.2, kernel="wendland", diffusion="f
     """A square 2r x 2r water patch without gravity or walls (set its velocity with `set_drop_velocity`)."""
     return Scene.from_dict({
         "format": 1, "name": "drop", "dim": 2, "dp": dp, "end_time": end_time,
-        "domain": {"min": [-3.0, -3.0], "max": [3.0, 3.0], "origin": [0.0, 0.0]},
+        "domain": {"min": [-3.0, -3.0], "max": [3.0, 3.0], "origin": [0.0, 0.0], "exclude_outside": False},
         "physics": {"gravity": [0.0, 0.0], "hswl": 1.0, "coefsound": coefsound, "cfl": cfl, "kernel": kernel,
                     "diffusion": diffusion, "delta": delta, "integrator": integrator, "visc_alpha": visc_alpha,
                     "rho_min": 500.0, "rho_max": 2000.0},
@@ -78,7 +80,7 @@ def tank_scene(dp=0.04, diffusion="fourtakas", delta=0.1, coefsound=20.0, cfl=0.
     """Dam break 1 x 2 m column in a 4 m tank (examples/dambreak2d geometry, coarse)."""
     return Scene.from_dict({
         "format": 1, "name": "tank", "dim": 2, "dp": dp, "end_time": end_time,
-        "domain": {"min": [-0.3, -0.3], "max": [4.3, 4.5], "origin": [0.0, 0.0]},
+        "domain": {"min": [-0.3, -0.3], "max": [4.3, 4.5], "origin": [0.0, 0.0], "exclude_outside": False},
         "physics": {"diffusion": diffusion, "delta": delta, "coefsound": coefsound, "cfl": cfl,
                     "visc_alpha": 0.02, "kernel": kernel},
         "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.0, 2.0]}],
@@ -92,7 +94,7 @@ def jet_scene(dp=0.02, speed=10.0, layers=1, coefsound=20.0, end_time=0.06, visc
     needed: the impact dominates; c0 is set from the still-water scale, not from the impact speed."""
     return Scene.from_dict({
         "format": 1, "name": "jet", "dim": 2, "dp": dp, "end_time": end_time,
-        "domain": {"min": [-1.0, -0.5], "max": [2.0, 1.0], "origin": [0.0, 0.0]},
+        "domain": {"min": [-1.0, -0.5], "max": [2.0, 1.0], "origin": [0.0, 0.0], "exclude_outside": False},
         "physics": {"hswl": 0.2, "coefsound": coefsound, "visc_alpha": visc_alpha, "rho_min": 100.0,
                     "rho_max": 5000.0, "boundary": boundary},
         "fluid": [{"type": "box", "min": [0.3, 2 * dp], "max": [0.7, 0.2 + 2 * dp]}],
@@ -218,6 +220,11 @@ def watch(sim, steps: int, every: int = 10, *, p_scale=None, noise_bound=None, d
             sim.step()
         except NumericalError as e:
             return Verdict("blow-up", f"{e.cause} at step {e.step}", step=e.step)
+        ex = sim.features.excluded
+        if ex:    # a scene with [domain] exclude_outside: a removed particle is the same failure
+            step, _, pid, cause = ex[0]
+            from .solver import CAUSES
+            return Verdict("blow-up", f"{CAUSES[cause]} at step {step} (particle id {pid} excluded)", step=step)
         if k % every and k != steps:
             continue
         st, p, fl = _fluid(sim)

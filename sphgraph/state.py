@@ -46,11 +46,13 @@ class ForceBuffers:
     ddt: np.ndarray
     cancel: np.ndarray
     visc: np.ndarray
+    ddk: np.ndarray = None    # K_a of the DuFort-Frankel diffusion step (n rows), else empty
 
     @classmethod
-    def empty(cls, n, dim, dtype):
+    def empty(cls, n, dim, dtype, ddk=False):
         return cls(ace=np.zeros((n, dim), dtype), ar=np.zeros(n, dtype), ddt=np.zeros(n, dtype),
-                   cancel=np.zeros(n, np.int8), visc=np.zeros(n, dtype))
+                   cancel=np.zeros(n, np.int8), visc=np.zeros(n, dtype),
+                   ddk=np.zeros(n if ddk else 0, dtype))
 
 
 PARTS = ("interior", "halo_1", "halo_2")  # fixed summation order
@@ -72,6 +74,7 @@ class RankState:
     ace: np.ndarray = None                          # reduced forces of the current stage
     ar: np.ndarray = None
     visc: np.ndarray = None
+    ddk: np.ndarray = None                          # reduced K_a (DuFort-Frankel diffusion step)
     reduced_stage: int = -1
     dt_local: float = np.inf
     dt: float = 0.0

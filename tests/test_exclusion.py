@@ -14,7 +14,7 @@ def spill(exclude=True):
     return Scene.from_dict({
         "format": 1, "dim": 2, "dp": 0.02, "end_time": 1.0,
         "domain": {"min": [-0.1, -0.06], "max": [1.5, 0.6], "origin": [0.0, 0.0],
-                   "exclude_outside": exclude},
+                   "exclude_outside": exclude, "exclude_max_share": 1.0},   # an outflow: no bound
         "physics": {"coefsound": 10.0, "hswl": 0.2},
         "fluid": [{"type": "box", "min": [0.02, 0.02], "max": [1.2, 0.2]}],
         "boundary": [{"type": "wall", "min": [0.0, 0.0], "max": [0.8, 0.0], "layers": 2}]})
@@ -94,7 +94,7 @@ def still_water(exclude=True):
     return Scene.from_dict({
         "format": 1, "dim": 2, "dp": 0.04, "end_time": 1.0,
         "domain": {"min": [-0.1, -0.1], "max": [1.7, 0.6], "origin": [0.0, 0.0],
-                   "exclude_outside": exclude},
+                   "exclude_outside": exclude, "exclude_max_share": 0.01},  # 2 of its 228 fluid rows
         "physics": {"coefsound": 10.0, "rho_min": 950.0, "rho_max": 1050.0},
         "initial": {"hydrostatic": True},
         "fluid": [{"type": "box", "min": [0.04, 0.04], "max": [1.56, 0.28]}],
@@ -203,3 +203,48 @@ def test_exclusions_survive_a_sigkill_through_the_checkpoint(tmp_path):
         assert got[k].dtype == ref[k].dtype and np.array_equal(got[k], ref[k]), (k, got[k], ref[k])
     assert got["attrs"]["count"] == len(ref["id"])
     assert np.array_equal(c.exclusions["id"], ref["id"][ref["step"] <= 240])   # from the checkpoint
+
+
+def spill_default(share=None):
+    """The spill with [domain] as a user writes it: exclusion left at its default (on)."""
+    d = spill().to_dict()
+    d["domain"] = {k: d["domain"][k] for k in ("min", "max", "origin")}
+    if share is not None:
+        d["domain"]["exclude_max_share"] = share
+    return Scene.from_dict(d)
+
+
+def test_exclusion_is_on_by_default_and_stops_the_run_past_its_share(tmp_path):
+    """Default: particles leaving are excluded; the run stops (NumericalError, exit 1) when the
+    exclusions pass exclude_max_share of the fluid (0.1 % by default: the spill's first
+    exclusion is 1 of 600), and /exclusions holds every one up to then."""
+    from sphgraph import run
+    from sphgraph.io import read_group
+    assert spill_default().exclude_outside and spill_default().exclude_max_share == 1e-3
+    sim = Simulation(spill_default())
+    with pytest.raises(NumericalError, match=r"1 particles excluded, 0.167 % of the run's 600 fluid particles, "
+                       r"above domain.exclude_max_share = 0.1 %"):
+        for _ in range(260):
+            sim.step()
+    first = sim.step_count
+    assert len(sim.features.excluded) == 1
+    # 1 % of 600: the run goes on to the 7th exclusion
+    with pytest.raises(NumericalError, match="7 particles excluded") as err:
+        run(spill_default(0.01), out=tmp_path / "r", max_steps=400, progress=False)
+    assert err.value.step > first
+    rows = read_group(tmp_path / "r", "exclusions")
+    assert len(rows["id"]) == 7 and rows["step"][0] == first and rows["step"][-1] == err.value.step
+    assert np.all(rows["cause"] == 2)
+
+
+def test_cli_summary_of_exclusions_and_exit_1_past_the_share(tmp_path, capsys):
+    from sphgraph.cli import main
+    from sphgraph.scene import dumps_toml
+    f = tmp_path / "spill.toml"
+    f.write_text(dumps_toml(spill_default(1.0).to_dict()))
+    assert main(["run", str(f), "--out", str(tmp_path / "a"), "--max-steps", "260", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "sphgraph: excluded" in err and "particle left the domain" in err and "% of 600 fluid" in err
+    f.write_text(dumps_toml(spill_default().to_dict()))
+    assert main(["run", str(f), "--out", str(tmp_path / "b"), "--max-steps", "260", "--quiet"]) == 1
+    assert "numerical failure" in capsys.readouterr().err

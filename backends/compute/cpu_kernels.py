@@ -15,7 +15,8 @@ drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
-from sphgraph.physics.interact import bound_pair, fluid_pair  # noqa: E402
+from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair  # noqa: E402
+from sphgraph.physics.kernels import grad_factor  # noqa: E402
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -126,6 +127,49 @@ def forces(dpos, dvel, drho, dpress, dkind,
         visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
+@njit(parallel=True, fastmath=True, cache=True)
+def diffusion_k(dpos, dkind, spos, srho, skind, start, origin, inv_size, dims, axes, reach, prm, opt, ddk):
+    """K_a = sum_b k_ab (`interact.diffusion_coef`) of each fluid destination over the fluid
+    sources within 2h, for the DuFort-Frankel diffusion step (`verlet`); boundary sources add
+    nothing (where they cancel a's diffusion, `reduce_parts` zeroes K_a with its term).
+    Its own pass over the grid, so that `forces` (the default path) is compiled as it was."""
+    dim = opt[O_DIM]
+    kernel = opt[O_KERNEL]
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    nf = dims[0]
+    nm = dims[1]
+    for i in prange(dpos.shape[0]):
+        kk = 0.0 * ddk[i]
+        if dkind[i] == 0:
+            lo = np.zeros(3, np.int64)
+            hi = np.zeros(3, np.int64)
+            empty = False
+            for k in range(3):
+                a = axes[k]
+                if a >= 0:
+                    c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
+                    lo[k] = max(c - reach, 0)
+                    hi[k] = min(c + reach, dims[k] - 1)
+                    if lo[k] > hi[k]:
+                        empty = True
+            if not empty:
+                for c2 in range(lo[2], hi[2] + 1):
+                    for c1 in range(lo[1], hi[1] + 1):
+                        row = (c2 * nm + c1) * nf
+                        for j in range(start[row + lo[0]], start[row + hi[0] + 1]):
+                            if skind[j] != 0:
+                                continue
+                            r2 = 0.0
+                            for d in range(dim):
+                                t = dpos[i, d] - spos[j, d]
+                                r2 += t * t
+                            if r2 > support2 or r2 < 1e-18:
+                                continue
+                            kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
+        ddk[i] = kk
+
+
 @njit(parallel=True, cache=True)
 def pressure_into(rho, prm, out):
     for i in prange(rho.shape[0]):
@@ -133,13 +177,15 @@ def pressure_into(rho, prm, out):
 
 
 @njit(parallel=True, cache=True)
-def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc):
+def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, ddks, dk):
     """Sum partial buffers in their fixed order (interior, halo 1, halo 2).
 
     Fluid acceleration gets gravity; density diffusion is added unless any
     part cancelled it (DBC neighbour). Same result whatever order the parts
-    were computed in.
+    were computed in. With `dk` as long as `ar` (the DuFort-Frankel step) the parts'
+    diffusion coefficients K_a are summed into it the same way (0 where cancelled).
     """
+    df = dk.shape[0] == ar.shape[0] and ar.shape[0] > 0
     nparts = len(aces)
     dim = ace.shape[1]
     for i in prange(ace.shape[0]):
@@ -160,6 +206,11 @@ def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc):
                 v = viscs[k][i]
         ar[i] = s + (dd if cc == 0 else 0.0 * dd)
         visc[i] = v
+        if df:
+            k = 0.0 * s
+            for q in range(nparts):
+                k += ddks[q][i]
+            dk[i] = k if cc == 0 else 0.0 * k
 
 
 @njit(parallel=True, cache=True)
@@ -193,20 +244,26 @@ def dt_terms(ace, vel, visc, kind, out):
 
 
 @njit(parallel=True, cache=True)
-def verlet(pos, vel, rho, vel_m1, rho_m1, kind, ace, ar, dt, euler, rho0):
+def verlet(pos, vel, rho, vel_m1, rho_m1, kind, ace, ar, dt, euler, rho0, dk):
     """Verlet step (DualSPHysics ComputeVerlet), Euler step when `euler`.
 
     fluid:  r += dt v + dt^2/2 a;  v_new = v_m1 + 2dt a (Euler: v + dt a);
-            rho_new = rho_m1 + 2dt ar (Euler: rho + dt ar)
+            rho_new = rho_m1 + 2dt ar (Euler: rho + dt ar); with `dk` (K_a, as long as
+            rho: the DuFort-Frankel diffusion step, sphgraph.physics.interact)
+            rho_new = (rho_m1 (1 - dt K_a) + 2dt (ar + K_a rho)) / (1 + dt K_a)
     boundary (DBC): rho as above, clamped to >= rho0 (DualSPHysics
             ComputeVerletVarsBound: stops boundaries attracting fluid); fixed position.
     """
     dim = pos.shape[1]
     dt2 = 2.0 * dt
     dt205 = 0.5 * dt * dt
+    df = dk.shape[0] == rho.shape[0] and rho.shape[0] > 0
     for i in prange(pos.shape[0]):
         if euler:
             rnew = rho[i] + dt * ar[i]
+        elif df:
+            kd = dt * dk[i]
+            rnew = (rho_m1[i] * (1.0 - kd) + dt2 * (ar[i] + dk[i] * rho[i])) / (1.0 + kd)
         else:
             rnew = rho_m1[i] + dt2 * ar[i]
         rho_m1[i] = rho[i]

@@ -5,7 +5,7 @@ import numba
 import numpy as np
 
 from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
-from sphgraph.config import P_RHO0
+from sphgraph.config import O_DDT_DF, P_RHO0
 from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
 
@@ -37,6 +37,7 @@ class NumbaCPU(ComputeBackend):
         state.ace = np.zeros((p.n, p.dim), state.dtype)
         state.ar = np.zeros(p.n, state.dtype)
         state.visc = np.zeros(p.n, state.dtype)
+        state.ddk = np.zeros(p.n if state.opt[O_DDT_DF] else 0, state.dtype)
         state.parts = {}
         state.reduced_stage = -1
 
@@ -139,15 +140,16 @@ class NumbaCPU(ComputeBackend):
     def forces(self, state, part: str) -> None:
         p = state.particles
         buf = state.parts.get(part)
-        if buf is None or buf.ar.shape[0] != p.n:
-            buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype)
+        df = bool(state.opt[O_DDT_DF])
+        if buf is None or buf.ar.shape[0] != p.n or (df and buf.ddk.shape[0] != p.n):
+            buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype, ddk=df)
         if part == "interior":
             src = (p.pos, p.vel, p.rho, state.press, p.kind)
             grid = state.cells
         else:
             halo = state.halos.get(int(part[-1]))
             if halo is None or halo.cells is None:  # empty halo: contributes nothing
-                for a in (buf.ace, buf.ar, buf.ddt, buf.visc):
+                for a in (buf.ace, buf.ar, buf.ddt, buf.visc, buf.ddk):
                     a[...] = 0
                 buf.cancel[...] = 0
                 return
@@ -156,6 +158,8 @@ class NumbaCPU(ComputeBackend):
         _threads(p.n, ROWS_PER_THREAD_FORCES)
         K.forces(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
                  state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
+        if df:
+            K.diffusion_k(p.pos, p.kind, src[0], src[2], src[4], *grid.kernel_args(), state.prm, state.opt, buf.ddk)
 
     def reduce_forces(self, state, stage: int) -> None:
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
@@ -166,8 +170,18 @@ class NumbaCPU(ComputeBackend):
         K.reduce_parts(tuple(b.ace for b in bufs), tuple(b.ar for b in bufs),
                        tuple(b.ddt for b in bufs), tuple(b.cancel for b in bufs),
                        tuple(b.visc for b in bufs), state.particles.kind,
-                       state.consts.gravity.astype(state.dtype), state.ace, state.ar, state.visc)
+                       state.consts.gravity.astype(state.dtype), state.ace, state.ar, state.visc,
+                       tuple(self._ddk(b, state) for b in bufs), state.ddk)
         state.reduced_stage = (state.step, stage)
+
+    @staticmethod
+    def _ddk(buf, state):
+        """A part's K_a for the DuFort-Frankel step; a user task's buffer (ForceBuffers.empty
+        without ddk) adds no diffusion, so zeros."""
+        n = state.ddk.shape[0]
+        if buf.ddk is None or buf.ddk.shape[0] != n:
+            buf.ddk = np.zeros(n, state.dtype)
+        return buf.ddk
 
     def dt_local(self, state) -> float:
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
@@ -183,7 +197,8 @@ class NumbaCPU(ComputeBackend):
         dt = state.dtype(state.dt)
         rho0 = state.dtype(state.consts.prm[P_RHO0])
         if integrator == "verlet":
-            K.verlet(p.pos, p.vel, p.rho, p.vel_m1, p.rho_m1, p.kind, state.ace, state.ar, dt, euler, rho0)
+            K.verlet(p.pos, p.vel, p.rho, p.vel_m1, p.rho_m1, p.kind, state.ace, state.ar, dt, euler, rho0,
+                     state.ddk)
         elif stage == 1:
             if state.stage0 is None or state.stage0[0].shape != p.pos.shape:
                 state.stage0 = (np.empty_like(p.pos), np.empty_like(p.vel), np.empty_like(p.rho))

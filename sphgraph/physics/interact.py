@@ -17,6 +17,18 @@ density diffusion (returned apart, `ddt`, see below):
      P^H_b - P^H_a = rho0 g . (r_b - r_a), so a fluid at rest diffuses nothing.
   With DBC a boundary neighbour cancels the diffusion of particle a ("Molteni",
   "fourtakas"); "fourtakas-full" instead just skips boundary neighbours.
+DuFort-Frankel diffusion step (`[physics] diffusion_time = "dufort-frankel"`, Verlet only):
+  both diffusion forms are affine in rho_a, ddt_a = D_a - K_a rho_a with
+  K_a = sum_b k_ab, k_ab = -delta 2h c0 m_b/rho_b (r_ab . grad W)/(r^2+eta^2) >= 0
+  (`diffusion_coef`; Wendland's and the cubic's F < 0). Verlet's leapfrog
+  rho^{n+1} = rho^{n-1} + 2 dt ar^n integrates -K_a rho_a with an odd-even mode that grows
+  by (1 + dt K_a) a step (unconditionally unstable for a decay term; the Euler step every
+  40 steps only resets it); with rho_a in that term taken as (rho^{n+1} + rho^{n-1})/2
+  (DuFort & Frankel 1953, Proc. Roy. Soc. A; Durran 2010, Numerical Methods for Fluid
+  Dynamics, §3.3) the step is
+      rho^{n+1} = (rho^{n-1} (1 - dt K_a) + 2 dt (ar^n + K_a rho^n)) / (1 + dt K_a),
+  whose roots have |z|^2 = (1 - dt K_a)/(1 + dt K_a) < 1 for the term alone: stable at
+  any dt, second order, and the same limit as the leapfrog when dt K_a -> 0.
 viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt); the pair
              functions return it without the factor h, which the callers apply to the
              maximum (h > 0, so max(h x) = h max(x) to the bit; one multiply a pair less).
@@ -105,6 +117,13 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
                 drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
             ddt = (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
     return ax, ay, az, ar, ddt, cancel, dot_rr2
+
+
+@njit(inline="always", cache=True)
+def diffusion_coef(r2, fac, rho_b, mass_b, prm):
+    """k_ab >= 0, the coefficient of -rho_a in the pair's density-diffusion term (Molteni and
+    Fourtakas alike: d ddt / d rho_a): -delta 2h c0 m_b (F r^2)/(r^2 + eta^2) / rho_b."""
+    return (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * (fac * r2) / ((r2 + prm[P_ETA2]) * rho_b)
 
 
 @njit(inline="always", cache=True)
