@@ -116,7 +116,8 @@ class Features:
             bad = sim.compute.check(st, sim.lo, sim.hi)
             if bad is None or bad[1] not in (2, 3):   # NaN (1) is the solver's to report
                 continue
-            p = sim.compute.host_rows(st)
+            sim.compute.sync_host(st)    # the host rows current (a device backend), then removed
+            p = st.particles
             x = np.asarray(p.pos)
             out = np.zeros(p.n, bool)
             for a in range(p.dim):
@@ -147,7 +148,7 @@ class Features:
         if n <= limit:
             return
         from .errors import NumericalError
-        from .solver import CAUSES
+        from .errors import CAUSES
         last = self.excluded[-1] if self.excluded else None
         what = (f": the last, particle id {last[2]} ({CAUSES[last[3]]})" if last is not None
                 and last[0] == sim.step_count else "")
@@ -186,7 +187,7 @@ class Features:
 def exclusion_summary(rows: dict, n_fluid: int) -> str:
     """One line for the end of a run: how many particles were excluded, their share of the
     fluid and the count by cause (`rows`: the /exclusions columns)."""
-    from .solver import CAUSES
+    from .errors import CAUSES
     n = len(rows["id"])
     causes, counts = np.unique(np.asarray(rows["cause"]), return_counts=True)
     by = ", ".join(f"{k} {CAUSES[int(c)]}" for c, k in zip(causes, counts))

@@ -39,12 +39,6 @@ class ComputeBackend:
         """Allocate what the kernels need for `state` (called after any change of N)."""
         raise NotImplementedError
 
-    def host_rows(self, state):
-        """`state.particles` with every field (the Verlet history included) current on the
-        host, e.g. to remove rows and `prepare` again. Host backends hold them there; a
-        device backend brings them down first."""
-        return state.particles
-
     def host_arrays(self, state) -> dict:
         """Output arrays of the owned particles (host numpy): id, kind, position, velocity, density, pressure."""
         raise NotImplementedError

@@ -602,10 +602,6 @@ class NumbaCUDA(ComputeBackend):
         state.reduced_stage = -1
         # the solver's stage-0 / press / ace slots stay None: the device holds them
 
-    def host_rows(self, state):
-        self.sync_host(state)
-        return state.particles
-
     def sync_host(self, state) -> None:
         """Bring the host `state.particles` up to the device rows (order included)."""
         dv = state.extra.get("dev")
