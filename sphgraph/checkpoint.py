@@ -336,7 +336,7 @@ def save(sim, out_dir, *, next_out: float, frames: int, last_saved: int, next_ch
                 "schedule": sim.schedule.name, "precision": sim.precision, "backend": sim.compute.name,
                 "comm": sim.comm.name, "ranks": int(sim.nranks),
                 "axis": -1 if sim.axis is None else int(sim.axis), "integrator": sim.integrator,
-                "dim": int(sim.dim), "n_total": int(sim.n_total), "balancer": _balancer_state(sim),
+                "dim": int(sim.dim), "n_total": int(sum(len(b["id"]) for b in blocks)), "balancer": _balancer_state(sim),
                 "probes": _sampler_state(sim),
                 "written_unix": time.time()}
         write(path, meta, blocks, cuts, fsync=fsync, exclusions=exclusions)
