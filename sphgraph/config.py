@@ -33,15 +33,20 @@ BOUNDARIES = ("dbc", "mdbc", "mdbc-noslip")
 # Frankel 1953: the particle's own density in the term is the mean of the new and the
 # previous one, unconditionally stable for diffusion)
 DIFFUSION_TIMES = ("leapfrog", "dufort-frankel")
+# the pressure term of fluid pairs (sphgraph.physics.interact): "none" = DualSPHysics' centred
+# (P_a + P_b) with artificial viscosity and density diffusion; "zhang2017" = the linearised
+# (acoustic) Riemann solution with the low-dissipation limiter of Zhang, Hu & Adams 2017
+RIEMANNS = ("none", "zhang2017")
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
 P_VISC, P_VISC_BOUND, P_NU, P_DDT_KH, P_GX, P_GY, P_GZ, P_MASS_F, P_MASS_B = range(10, 19)
 P_CUBIC_A24 = 19
 P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B = 20, 21, 22, 23, 24  # series of (1+y)^(1/gamma) - 1; rho0/B
-P_INV_H, P_BWH, P_YMAX, P_COUNT = 25, 26, 27, 28  # P_YMAX: the largest |y| of the series (fluid_pair)
+P_INV_H, P_BWH, P_YMAX = 25, 26, 27
+P_RHO0C0, P_RIEMANN_ETA, P_COUNT = 28, 29, 30   # rho0 c0 and the limiter's factor (riemann_pair)  # P_YMAX: the largest |y| of the series (fluid_pair)
 # opt indices
-O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_COUNT = range(6)
+O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_RIEMANN, O_COUNT = range(7)
 # opt values
 K_WENDLAND, K_CUBIC = 0, 1
 D_NONE, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL = 0, 1, 2, 3
@@ -74,6 +79,8 @@ class PhysicsConfig:
     shifting_tfs: float = 0.0           # DualSPHysics ShiftTFS: free-surface threshold of div r; 0 = off
     boundary: str = "dbc"               # wall treatment (BOUNDARIES); mDBC: sphgraph.physics.mdbc
     diffusion_time: str = "leapfrog"    # Verlet's density-diffusion step (DIFFUSION_TIMES)
+    riemann: str = "none"               # Riemann-solver pressure term of fluid pairs (RIEMANNS)
+    riemann_eta: float = 3.0            # the limiter's factor (Zhang, Hu & Adams 2017: 3)
 
     @classmethod
     def field_names(cls):
@@ -147,11 +154,15 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     prm[P_YMAX] = float(np.linalg.norm(g)) * 2.0 * h * prm[P_RHO0_B]
     prm[P_INV_H] = 1.0 / h
     prm[P_BWH] = bw / h
+    prm[P_RHO0C0] = cfg.rho0 * c0
+    prm[P_RIEMANN_ETA] = cfg.riemann_eta
     opt = np.zeros(O_COUNT, np.int64)
     opt[O_DIM] = dim
     opt[O_KERNEL] = KERNELS.index(cfg.kernel)
-    opt[O_DDT] = DIFFUSIONS.index(cfg.diffusion) if cfg.delta > 0 else D_NONE
+    # the Riemann term carries its own density dissipation: no diffusion term with it
+    opt[O_DDT] = DIFFUSIONS.index(cfg.diffusion) if cfg.delta > 0 and cfg.riemann == "none" else D_NONE
     opt[O_LAMINAR] = 1 if cfg.laminar_nu > 0 else 0
+    opt[O_RIEMANN] = RIEMANNS.index(cfg.riemann)
     opt[O_DDT_DF] = 1 if (cfg.diffusion_time == "dufort-frankel" and opt[O_DDT] != D_NONE) else 0
     cell = 2.0 * h if cfg.cell_size == "2h" else h
     return Constants(dim=dim, dp=dp, h=h, c0=c0, B=B, mass_fluid=mass, mass_bound=mass,

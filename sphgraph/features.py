@@ -48,13 +48,17 @@ class Features:
     def active(self) -> bool:
         ph = self.scene.physics
         return (self.motion_task or self.exclude_outside or ph.shifting != "none"
-                or ph.diffusion_time != "leapfrog")
+                or ph.diffusion_time != "leapfrog" or ph.riemann != "none")
 
     def attach(self, sim, particles) -> None:
         """Build the features from the scene's initial ``particles`` and hook them to every rank."""
         from .motion import Motion
         from .waves import Damping
         s = self.scene
+        if s.physics.riemann != "none" and sim.compute.name != "numba-cpu":
+            from .errors import InputError
+            raise InputError(f"{s.source}: physics.riemann: {s.physics.riemann!r} runs with --backend numba-cpu "
+                             f"(or use riemann = \"none\"), got {sim.compute.name}")
         if s.physics.diffusion_time != "leapfrog" and sim.compute.name != "numba-cpu":
             from .errors import InputError
             raise InputError(f"{s.source}: physics.diffusion_time: {s.physics.diffusion_time!r} runs with "

@@ -49,6 +49,7 @@ RANGES = {
     "physics.rho_max": (1e-3, 1e7, "kg/m^3", "the highest density a particle may reach"),
     "physics.shifting_coef": (-100.0, 0.0, "", "DualSPHysics ShiftCoef, default -2"),
     "physics.shifting_tfs": (0.0, 3.0, "", "free-surface threshold of div r, below dim"),
+    "physics.riemann_eta": (0.0, 100.0, "", "the Riemann limiter's factor; Zhang et al. 2017 use 3"),
     "initial.jitter": (0.0, 0.25, "dp", "random displacement as a fraction of dp"),
     "limits.max_particles": (1, 2 ** 53, "particles", "a count float64 holds exactly"),
     "fluid[].min": _C, "fluid[].max": _C,

@@ -19,8 +19,8 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes
-from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, SHIFTINGS,
-                     PhysicsConfig)
+from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS,
+                     SHIFTINGS, PhysicsConfig)
 from .errors import InputError
 from .ranges import describe, finite, in_range, is_real
 
@@ -46,7 +46,7 @@ _ENTRY_KEYS = {
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
                  "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES,
-                 "diffusion_time": DIFFUSION_TIMES}
+                 "diffusion_time": DIFFUSION_TIMES, "riemann": RIEMANNS}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
@@ -272,6 +272,10 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
     if cfg.shifting_tfs >= dim:  # the shift is scaled by (div r - tfs)/(dim - tfs)
         raise c.error("physics.shifting_tfs", f"a number >= 0 and < {dim} (0 = off; typically 1.5 "
                       "in 2D, 2.75 in 3D)", cfg.shifting_tfs)
+    if cfg.riemann != "none" and cfg.integrator != "symplectic":
+        raise c.error("physics.riemann", '"none" with integrator = "verlet" (the Riemann term\'s pressure '
+                      'jump is a diffusion of the density, which the Verlet leapfrog integrates unstably: '
+                      'set integrator = "symplectic")', cfg.riemann)
     if cfg.diffusion_time != "leapfrog" and cfg.integrator != "verlet":
         raise c.error("physics.diffusion_time", '"leapfrog" with integrator = "symplectic" (the option '
                       'is how the Verlet step advances the diffusion term)', cfg.diffusion_time)

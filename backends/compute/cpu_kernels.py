@@ -15,7 +15,7 @@ drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
-from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair  # noqa: E402
+from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
 from sphgraph.physics.kernels import grad_factor  # noqa: E402
 
 
@@ -109,6 +109,110 @@ def forces(dpos, dvel, drho, dpress, dkind,
                             arr += fr
                             dd += fd
                             cc |= fc
+                        elif not b_bound:
+                            fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
+                                                mf, prm, kernel)
+                            arr += fr
+                        else:
+                            continue
+                        if fv > vmax:
+                            vmax = fv
+        ace[i, 0] = axx
+        ace[i, 1] = ayy
+        if dim == 3:
+            ace[i, 2] = azz
+        ar[i] = arr
+        ddt[i] = dd
+        cancel[i] = cc
+        visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
+
+
+@njit(parallel=True, fastmath=True, cache=True)
+def forces_riemann(dpos, dvel, drho, dpress, dkind,
+           spos, svel, srho, spress, skind,
+           start, origin, inv_size, dims, axes, reach,
+           prm, opt, ace, ar, ddt, cancel, visc):
+    """`forces` with the Riemann-solver pressure term for fluid destinations
+    (`[physics] riemann`, `interact.riemann_pair`): the same traversal and outputs; no
+    diffusion term (ddt 0, nothing cancelled). A kernel of its own, so that `forces` (the
+    default path) is compiled as it was."""
+    dim = opt[O_DIM]
+    kernel = opt[O_KERNEL]
+    laminar = opt[O_LAMINAR] != 0
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    nf = dims[0]
+    nm = dims[1]
+    ns = dims[2]
+    for i in prange(dpos.shape[0]):
+        # cell range around i along each permuted axis, clipped to the source grid
+        lo0 = 0
+        hi0 = 0
+        lo1 = 0
+        hi1 = 0
+        lo2 = 0
+        hi2 = 0
+        empty = False
+        for k in range(3):
+            a = axes[k]
+            lo = 0
+            hi = 0
+            if a >= 0:
+                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
+                lo = max(c - reach, 0)
+                hi = min(c + reach, dims[k] - 1)
+                if lo > hi:
+                    empty = True
+            if k == 0:
+                lo0 = lo
+                hi0 = hi
+            elif k == 1:
+                lo1 = lo
+                hi1 = hi
+            else:
+                lo2 = lo
+                hi2 = hi
+        axx = 0.0 * drho[i]
+        ayy = axx
+        azz = axx
+        arr = axx
+        dd = axx
+        cc = 0
+        vmax = axx
+        xa = dpos[i, 0]
+        ya = dpos[i, 1]
+        za = dpos[i, 2] if dim == 3 else 0.0
+        vxa = dvel[i, 0]
+        vya = dvel[i, 1]
+        vza = dvel[i, 2] if dim == 3 else 0.0
+        rho_a = drho[i]
+        inv_rho_a = 1.0 / rho_a
+        p_a = dpress[i]
+        a_fluid = dkind[i] == 0
+        if not empty:
+            for c2 in range(lo2, hi2 + 1):
+                for c1 in range(lo1, hi1 + 1):
+                    row = (c2 * nm + c1) * nf
+                    for j in range(start[row + lo0], start[row + hi0 + 1]):
+                        drx = xa - spos[j, 0]
+                        dry = ya - spos[j, 1]
+                        drz = (za - spos[j, 2]) if dim == 3 else 0.0
+                        r2 = drx * drx + dry * dry + drz * drz
+                        if r2 > support2 or r2 < 1e-18:
+                            continue
+                        b_bound = skind[j] != 0
+                        dvx = vxa - svel[j, 0]
+                        dvy = vya - svel[j, 1]
+                        dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
+                        if a_fluid:
+                            fx, fy, fz, fr, fv = riemann_pair(
+                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                mb if b_bound else mf, b_bound, prm, kernel, laminar)
+                            axx += fx
+                            ayy += fy
+                            azz += fz
+                            arr += fr
                         elif not b_bound:
                             fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
                                                 mf, prm, kernel)

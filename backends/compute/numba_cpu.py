@@ -5,7 +5,7 @@ import numba
 import numpy as np
 
 from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
-from sphgraph.config import O_DDT_DF, P_RHO0
+from sphgraph.config import O_DDT_DF, O_RIEMANN, P_RHO0
 from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
 
@@ -156,8 +156,9 @@ class NumbaCPU(ComputeBackend):
             src = (halo.pos, halo.vel, halo.rho, halo.press, halo.kind)
             grid = halo.cells
         _threads(p.n, ROWS_PER_THREAD_FORCES)
-        K.forces(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
-                 state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
+        kern = K.forces_riemann if state.opt[O_RIEMANN] else K.forces
+        kern(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
+             state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
         if df:
             K.diffusion_k(p.pos, p.kind, src[0], src[2], src[4], *grid.kernel_args(), state.prm, state.opt, buf.ddk)
 

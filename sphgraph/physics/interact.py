@@ -29,6 +29,20 @@ DuFort-Frankel diffusion step (`[physics] diffusion_time = "dufort-frankel"`, Ve
       rho^{n+1} = (rho^{n-1} (1 - dt K_a) + 2 dt (ar^n + K_a rho^n)) / (1 + dt K_a),
   whose roots have |z|^2 = (1 - dt K_a)/(1 + dt K_a) < 1 for the term alone: stable at
   any dt, second order, and the same limit as the leapfrog when dt K_a -> 0.
+Riemann-solver pressure term (`[physics] riemann = "zhang2017"`, `riemann_pair`; Zhang, Hu &
+Adams 2017, J. Comput. Phys. 335:605-620, doi:10.1016/j.jcp.2017.01.027): each pair is the
+1D Riemann problem along e = r_ab/r with left state a, right state b, U_L = -v_a . e,
+U_R = -v_b . e, solved linearised (acoustic impedance rho0 c0):
+             U* = (U_L + U_R)/2 + (P_a - P_b)/(2 rho0 c0)
+             P* = (P_a + P_b)/2 + rho0 c0 beta (U_L - U_R)/2,
+             beta = min(eta max(U_L - U_R, 0)/c0, 1)   (the low-dissipation limiter, eta = 3:
+                    dissipation only where the pair is compressed, none in expansion)
+continuity   drho_a/dt += 2 rho_a m_b/rho_b (v_a - v*) . grad W
+                        = m_b rho_a/rho_b F [v_ab . r_ab + r (P_a - P_b)/(rho0 c0)]
+momentum     dv_a/dt   += -m_b 2 P*/(rho_a rho_b) grad W
+The P* dissipation replaces the artificial viscosity and the U* pressure jump the density
+diffusion (neither is added for these pairs; a DBC boundary b adds no pressure jump, as
+SPHinXsys' wall form has none); the laminar term is kept.
 viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt); the pair
              functions return it without the factor h, which the callers apply to the
              maximum (h > 0, so max(h x) = h max(x) to the bit; one multiply a pair less).
@@ -40,7 +54,8 @@ import math
 from numba import njit
 
 from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI, D_FOURTAKAS_FULL)
+                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI,
+                      D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
 
@@ -117,6 +132,36 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
                 drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
             ddt = (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
     return ax, ay, az, ar, ddt, cancel, dot_rr2
+
+
+@njit(inline="always", cache=True)
+def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b, b_bound, prm,
+                 kernel, laminar):
+    """Contribution of b to fluid particle a with the Riemann-solver pressure term (module
+    docstring). Returns (ax, ay, az, ar, visc), visc the ViscDt term / h. A boundary b (DBC)
+    adds no U* pressure jump to the continuity: its pressure is the wall's reaction, not a
+    fluid state, and diffusing towards it pumps the density up along every wall."""
+    fac = grad_factor(r2, prm, kernel)
+    inv_rho_b = 1.0 / rho_b
+    inv_r2e = 1.0 / (r2 + prm[P_ETA2])
+    r = math.sqrt(r2)
+    dot = dvx * drx + dvy * dry + dvz * drz          # v_ab . r_ab = -r (U_L - U_R)
+    du = -dot / r                                    # U_L - U_R (> 0: the pair is compressed)
+    rc = prm[P_RHO0C0]
+    jump = 0.0 * dot if b_bound else r * (p_a - p_b) / rc
+    ar = (mass_b * rho_a) * fac * (dot + jump) * inv_rho_b
+    beta = min(prm[P_RIEMANN_ETA] * max(du, 0.0) / prm[P_C0], 1.0)
+    p2 = p_a + p_b + rc * beta * du                  # 2 P*
+    cf = p2 * (-mass_b * inv_rho_a) * inv_rho_b * fac
+    ax = cf * drx
+    ay = cf * dry
+    az = cf * drz
+    if laminar:
+        lam = mass_b * 4.0 * prm[P_NU] * (fac * r2) * inv_r2e / (rho_a + rho_b)
+        ax += lam * dvx
+        ay += lam * dvy
+        az += lam * dvz
+    return ax, ay, az, ar, dot * inv_r2e
 
 
 @njit(inline="always", cache=True)
