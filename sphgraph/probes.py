@@ -20,7 +20,8 @@ What is measured (DualSPHysics MeasureTool / ComputeForces conventions):
   (half-full kernel), searched in steps of dp/4.
 * body force: what the fluid's pressure exerts on the body's boundary particles,
   F = sum_{b in body} sum_{a fluid} m_a m_b (P_a + P_b)/(rho_a rho_b) (-grad_a W_ab),
-  i.e. minus the pressure force the body puts on the fluid (artificial viscosity left out).
+  i.e. minus the pressure force the body puts on the fluid (artificial viscosity left out);
+  summed over a cell grid of the fluid near the body (`sphgraph.probe_kernels`).
 
 `ProbeSampler.sample(sim)` takes the gathered particles (`Simulation.frame_arrays`, so any
 rank count works); `sphgraph.run` calls it after each step that is due and writes the
@@ -137,6 +138,7 @@ class ProbeSampler:
         k = scene.constants
         self.kernel = scene.physics.kernel
         self.h, self.aw, self.bw = k.h, float(k.prm[P_AW]), float(k.prm[P_BW])
+        self.prm = np.asarray(k.prm, np.float64)
         self.mass_f, self.mass_b = k.mass_fluid, k.mass_bound
         self.dim = scene.dim
         self.dp = scene.dp
@@ -249,16 +251,21 @@ class ProbeSampler:
         reach = 2.0 * self.h
         nearf = np.all((fpos >= bpos.min(0) - reach) & (fpos <= bpos.max(0) + reach), axis=1)
         fpos, frho, fp = fpos[nearf], frho[nearf], fp[nearf]
-        for i0 in range(0, len(bpos), 256):   # chunks keep the pair matrix small
-            b = slice(i0, i0 + 256)
-            d = fpos[None, :, :] - bpos[b][:, None, :]          # r_a - r_b (a fluid, b body)
-            r = np.sqrt((d * d).sum(-1))
-            m = (r < reach) & (r > 1e-12)
-            fac = np.where(m, grad_factor(r, self.h, self.bw, self.kernel), 0.0)
-            coef = (fp[None, :] + bp[b][:, None]) / (frho[None, :] * brho[b][:, None]) * fac
-            # force on the body = -(force on fluid a) = m_a m_b (P_a+P_b)/(rho_a rho_b) F r_ab
-            F += self.mass_f * self.mass_b * (coef[:, :, None] * d).sum((0, 1))
-        return F
+        if not len(fpos):
+            return F
+        # the fluid near the body in a cell grid of 2h cells: each body particle visits the
+        # cells within reach (O(body x neighbours), not dense body x fluid pair matrices)
+        from .cells import axis_order, build_grid
+        from .probe_kernels import body_force_rows
+        f64 = np.float64
+        fpos = np.ascontiguousarray(fpos, f64)
+        grid, perm = build_grid(fpos, reach, 1, axis_order(self.dim))
+        rows = np.zeros((len(bpos), self.dim))
+        body_force_rows(np.ascontiguousarray(bpos, f64), np.ascontiguousarray(brho, f64),
+                        np.ascontiguousarray(bp, f64), fpos[perm], np.ascontiguousarray(frho[perm], f64),
+                        np.ascontiguousarray(fp[perm], f64), *grid.kernel_args(), self.prm,
+                        KERNELS.index(self.kernel), float(self.mass_f), float(self.mass_b), rows)
+        return rows.sum(0)
 
     # -- output
     def datasets(self) -> dict:
