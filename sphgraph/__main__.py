@@ -1,14 +1,9 @@
-import os
-import signal
+import sphgraph
 
+sphgraph.COMMAND = True
+import signal  # noqa: E402
 
-def _sigint_at_start(signum, frame):
-    # start-up of `python -m sphgraph` (imports, before main's handlers): nothing is written yet
-    os.write(2, b"sphgraph: interrupted (SIGINT) during start-up\n")
-    os._exit(130)
-
-
-signal.signal(signal.SIGINT, _sigint_at_start)
+signal.signal(signal.SIGINT, sphgraph._sigint_at_start)   # the command's start-up handler
 
 from . import cli  # noqa: E402 - after the start-up SIGINT handler
 

@@ -6,30 +6,18 @@ error (short message; traceback in a log file).
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import signal
 import sys
+import tempfile
+import threading
+import traceback
 
-
-def _sigint_at_start(signum, frame):
-    # start-up of the command (imports, before main's handlers): nothing is written yet
-    os.write(2, b"sphgraph: interrupted (SIGINT) during start-up\n")
-    os._exit(130)
-
-
-# the console script (python -m sphgraph sets it too), not a library importing this module
-COMMAND = os.path.basename(sys.argv[0]) == "sphgraph"
-if COMMAND:
-    signal.signal(signal.SIGINT, _sigint_at_start)
-
-import argparse  # noqa: E402 - after the start-up SIGINT handler
-import json  # noqa: E402
-import tempfile  # noqa: E402
-import threading  # noqa: E402
-import traceback  # noqa: E402
-
-from .errors import CommError, DiskFullError, InputError, NumericalError, SphgraphError  # noqa: E402
-from .ranges import check_flag  # noqa: E402
+from . import COMMAND  # the console script or python -m sphgraph (sphgraph/__init__.py)
+from .errors import CommError, DiskFullError, InputError, NumericalError, SphgraphError
+from .ranges import check_flag
 
 
 class _Parser(argparse.ArgumentParser):
@@ -468,17 +456,36 @@ def main(argv=None) -> int:
     """The command line; returns the exit code. SIGINT at any moment (start-up, a step, a
     write, the report of another error) ends with one line and 130."""
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.default_int_handler)   # KeyboardInterrupt, wherever it lands
+        # the command leaves at once (_sigint_exit); a library caller gets KeyboardInterrupt
+        signal.signal(signal.SIGINT, _sigint_exit if COMMAND else signal.default_int_handler)
     try:
         code = _main(argv)
     except KeyboardInterrupt:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # a second ^C must not interrupt the report
-        print("sphgraph: interrupted (SIGINT); output written so far stays readable", file=sys.stderr)
+        print(_INTERRUPTED, file=sys.stderr)
         return 130
     if COMMAND and threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)   # the work is done: ^C in the exit must not print
     return code
+
+
+_INTERRUPTED = "sphgraph: interrupted (SIGINT); output written so far stays readable"
+
+
+def _sigint_exit(signum, frame):
+    """SIGINT in the command: one line, the temporary file of a write in progress removed,
+    exit 130 -- now, wherever the main thread is. A KeyboardInterrupt would be raised at the
+    next bytecode, which may be a finaliser or a ctypes callback (llvmlite's), where Python
+    prints it and swallows it, and the run goes on. Every finished file is complete
+    (writes are atomic), so leaving at once is as safe as a kill."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    files = sys.modules.get("sphgraph.files")   # no import here: the main thread may hold the import lock
+    if files is not None:
+        files.remove_in_flight()
+    if _root():
+        os.write(2, (_INTERRUPTED + "\n").encode())
+    os._exit(130)
 
 
 def _root() -> bool:

@@ -205,10 +205,20 @@ def _remove(path) -> None:
         pass
 
 
+# temporary files being written now: the command's SIGINT handler removes them before it exits
+IN_FLIGHT: set = set()
+
+
+def remove_in_flight() -> None:
+    for tmp in list(IN_FLIGHT):
+        _remove(tmp)
+
+
 @contextmanager
 def guard_write(tmp, final=None):
     """Around the writing of temporary file ``tmp``: on any failure (and on SIGINT) ``tmp``
     is removed; a full disk becomes :class:`DiskFullError` naming ``final`` (or ``tmp``)."""
+    IN_FLIGHT.add(tmp)
     try:
         yield
     except BaseException as e:
@@ -216,6 +226,8 @@ def guard_write(tmp, final=None):
         if is_no_space(e):
             raise disk_full(final or tmp) from None
         raise
+    finally:
+        IN_FLIGHT.discard(tmp)
 
 
 def _write_all(path: str, data: bytes, fsync: bool) -> None:
