@@ -13,6 +13,7 @@ from sphgraph.physics import drop_stale_cache
 
 drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
+from sphgraph.cells import cell_window  # noqa: E402
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
 from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
@@ -246,28 +247,23 @@ def diffusion_k(dpos, dkind, spos, srho, skind, start, origin, inv_size, dims, a
     for i in prange(dpos.shape[0]):
         kk = 0.0 * ddk[i]
         if dkind[i] == 0:
-            lo = np.zeros(3, np.int64)
-            hi = np.zeros(3, np.int64)
-            empty = False
-            for k in range(3):
-                a = axes[k]
-                if a >= 0:
-                    c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
-                    lo[k] = max(c - reach, 0)
-                    hi[k] = min(c + reach, dims[k] - 1)
-                    if lo[k] > hi[k]:
-                        empty = True
+            x = dpos[i, 0]
+            y = dpos[i, 1]
+            z = dpos[i, 2] if dim == 3 else 0.0
+            lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
+                x, y, z, origin[0], origin[1], origin[2], inv_size, dims[0], dims[1], dims[2],
+                axes[0], axes[1], axes[2], reach)
             if not empty:
-                for c2 in range(lo[2], hi[2] + 1):
-                    for c1 in range(lo[1], hi[1] + 1):
+                for c2 in range(lo2, hi2 + 1):
+                    for c1 in range(lo1, hi1 + 1):
                         row = (c2 * nm + c1) * nf
-                        for j in range(start[row + lo[0]], start[row + hi[0] + 1]):
+                        for j in range(start[row + lo0], start[row + hi0 + 1]):
                             if skind[j] != 0:
                                 continue
-                            r2 = 0.0
-                            for d in range(dim):
-                                t = dpos[i, d] - spos[j, d]
-                                r2 += t * t
+                            drx = x - spos[j, 0]
+                            dry = y - spos[j, 1]
+                            drz = (z - spos[j, 2]) if dim == 3 else 0.0
+                            r2 = drx * drx + dry * dry + drz * drz
                             if r2 > support2 or r2 < 1e-18:
                                 continue
                             kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
