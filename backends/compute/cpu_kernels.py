@@ -13,7 +13,6 @@ from sphgraph.physics import drop_stale_cache
 
 drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
-from sphgraph.cells import cell_window  # noqa: E402
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
 from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
@@ -233,41 +232,114 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
 
 
 @njit(parallel=True, fastmath=True, cache=True)
-def diffusion_k(dpos, dkind, spos, srho, skind, start, origin, inv_size, dims, axes, reach, prm, opt, ddk):
-    """K_a = sum_b k_ab (`interact.diffusion_coef`) of each fluid destination over the fluid
-    sources within 2h, for the DuFort-Frankel diffusion step (`verlet`); boundary sources add
-    nothing (where they cancel a's diffusion, `reduce_parts` zeroes K_a with its term).
-    Its own pass over the grid, so that `forces` (the default path) is compiled as it was."""
+def forces_df(dpos, dvel, drho, dpress, dkind,
+           spos, svel, srho, spress, skind,
+           start, origin, inv_size, dims, axes, reach,
+           prm, opt, ace, ar, ddt, cancel, visc, ddk):
+    """`forces`, and in the same pass `ddk` = K_a = sum_b k_ab over the fluid sources
+    (`interact.diffusion_coef`) for the DuFort-Frankel diffusion step (`verlet`); boundary
+    sources add nothing (where they cancel a's diffusion, `reduce_parts` zeroes K_a with its
+    term). A kernel of its own, so that `forces` (the default path) is compiled as it was."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
+    ddt_kind = opt[O_DDT]
+    laminar = opt[O_LAMINAR] != 0
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
     nf = dims[0]
     nm = dims[1]
+    ns = dims[2]
     for i in prange(dpos.shape[0]):
-        kk = 0.0 * ddk[i]
-        if dkind[i] == 0:
-            x = dpos[i, 0]
-            y = dpos[i, 1]
-            z = dpos[i, 2] if dim == 3 else 0.0
-            lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
-                x, y, z, origin[0], origin[1], origin[2], inv_size, dims[0], dims[1], dims[2],
-                axes[0], axes[1], axes[2], reach)
-            if not empty:
-                for c2 in range(lo2, hi2 + 1):
-                    for c1 in range(lo1, hi1 + 1):
-                        row = (c2 * nm + c1) * nf
-                        for j in range(start[row + lo0], start[row + hi0 + 1]):
-                            if skind[j] != 0:
-                                continue
-                            drx = x - spos[j, 0]
-                            dry = y - spos[j, 1]
-                            drz = (z - spos[j, 2]) if dim == 3 else 0.0
-                            r2 = drx * drx + dry * dry + drz * drz
-                            if r2 > support2 or r2 < 1e-18:
-                                continue
-                            kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
+        # cell range around i along each permuted axis, clipped to the source grid
+        lo0 = 0
+        hi0 = 0
+        lo1 = 0
+        hi1 = 0
+        lo2 = 0
+        hi2 = 0
+        empty = False
+        for k in range(3):
+            a = axes[k]
+            lo = 0
+            hi = 0
+            if a >= 0:
+                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
+                lo = max(c - reach, 0)
+                hi = min(c + reach, dims[k] - 1)
+                if lo > hi:
+                    empty = True
+            if k == 0:
+                lo0 = lo
+                hi0 = hi
+            elif k == 1:
+                lo1 = lo
+                hi1 = hi
+            else:
+                lo2 = lo
+                hi2 = hi
+        axx = 0.0 * drho[i]
+        ayy = axx
+        azz = axx
+        arr = axx
+        dd = axx
+        cc = 0
+        kk = axx
+        vmax = axx
+        xa = dpos[i, 0]
+        ya = dpos[i, 1]
+        za = dpos[i, 2] if dim == 3 else 0.0
+        vxa = dvel[i, 0]
+        vya = dvel[i, 1]
+        vza = dvel[i, 2] if dim == 3 else 0.0
+        rho_a = drho[i]
+        inv_rho_a = 1.0 / rho_a
+        p_a = dpress[i]
+        a_fluid = dkind[i] == 0
+        if not empty:
+            for c2 in range(lo2, hi2 + 1):
+                for c1 in range(lo1, hi1 + 1):
+                    row = (c2 * nm + c1) * nf
+                    for j in range(start[row + lo0], start[row + hi0 + 1]):
+                        drx = xa - spos[j, 0]
+                        dry = ya - spos[j, 1]
+                        drz = (za - spos[j, 2]) if dim == 3 else 0.0
+                        r2 = drx * drx + dry * dry + drz * drz
+                        if r2 > support2 or r2 < 1e-18:
+                            continue
+                        b_bound = skind[j] != 0
+                        dvx = vxa - svel[j, 0]
+                        dvy = vya - svel[j, 1]
+                        dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
+                        if a_fluid:
+                            fx, fy, fz, fr, fd, fc, fv = fluid_pair(
+                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
+                            axx += fx
+                            ayy += fy
+                            azz += fz
+                            arr += fr
+                            dd += fd
+                            cc |= fc
+                            if not b_bound:
+                                kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
+                        elif not b_bound:
+                            fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
+                                                mf, prm, kernel)
+                            arr += fr
+                        else:
+                            continue
+                        if fv > vmax:
+                            vmax = fv
+        ace[i, 0] = axx
+        ace[i, 1] = ayy
+        if dim == 3:
+            ace[i, 2] = azz
+        ar[i] = arr
+        ddt[i] = dd
+        cancel[i] = cc
         ddk[i] = kk
+        visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
 @njit(parallel=True, cache=True)

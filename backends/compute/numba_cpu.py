@@ -156,11 +156,14 @@ class NumbaCPU(ComputeBackend):
             src = (halo.pos, halo.vel, halo.rho, halo.press, halo.kind)
             grid = halo.cells
         _threads(p.n, ROWS_PER_THREAD_FORCES)
-        kern = K.forces_riemann if state.opt[O_RIEMANN] else K.forces
-        kern(p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
-             state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
+        args = (p.pos, p.vel, p.rho, state.press, p.kind, *src, *grid.kernel_args(),
+                state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
         if df:
-            K.diffusion_k(p.pos, p.kind, src[0], src[2], src[4], *grid.kernel_args(), state.prm, state.opt, buf.ddk)
+            K.forces_df(*args, buf.ddk)
+        elif state.opt[O_RIEMANN]:
+            K.forces_riemann(*args)
+        else:
+            K.forces(*args)
 
     def reduce_forces(self, state, stage: int) -> None:
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
