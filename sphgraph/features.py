@@ -105,19 +105,21 @@ class Features:
         if self.shifting is not None:
             self.shifting.after_integrate(ctx, stage)
 
-    def exclude(self, sim) -> None:
+    def exclude(self, sim, bads: list) -> list:
         """Remove particles outside the domain (non-periodic axes) or, fluid only, outside
         [rho_min, rho_max]; count them in ``state.extra["excluded_ids"]``. Each rank's rows
         are scanned on the host only when the backend's own end-of-step check finds a row out
         of bounds (a device backend keeps its rows on the device otherwise). Raises
         `NumericalError` once the run's exclusions pass ``domain.exclude_max_share`` of its
-        fluid particles."""
+        fluid particles. `bads`: each context's result of the backend's check; returned with
+        the ranks whose rows were removed checked again."""
         if not self.exclude_outside:
-            return
+            return bads
         ph = self.scene.physics
-        for c in sim.contexts:
+        bads = list(bads)
+        for k, c in enumerate(sim.contexts):
             st = c.state
-            bad = sim.compute.check(st, sim.lo, sim.hi)
+            bad = bads[k]
             if bad is None or bad[1] not in (2, 3):   # NaN (1) is the solver's to report
                 continue
             sim.compute.sync_host(st)    # the host rows current (a device backend), then removed
@@ -139,7 +141,9 @@ class Features:
             st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
             st.particles = p.take(np.nonzero(cause == 0)[0])
             sim.compute.prepare(st)
+            bads[k] = sim.compute.check(st, sim.lo, sim.hi)
         self._check_share(sim)
+        return bads
 
     def _check_share(self, sim) -> None:
         """Stop (NumericalError, exit 1) when the exclusions of the whole run, every rank's,

@@ -239,10 +239,12 @@ class Simulation:
 
     def check(self) -> None:
         """Stop on NaN, a particle outside the domain or a density out of bounds."""
-        self.features.exclude(self)   # [domain] exclude_outside: remove and count instead
+        # one backend check a rank (a device backend's one wait); [domain] exclude_outside
+        # removes and counts the rows it finds out of bounds, checking those ranks again
+        bads = self.features.exclude(self, [self.compute.check(c.state, self.lo, self.hi)
+                                            for c in self.contexts])
         found = None
-        for c in self.contexts:
-            bad = self.compute.check(c.state, self.lo, self.hi)
+        for c, bad in zip(self.contexts, bads):
             if bad is None and self.invariants is not None:
                 bad = self.invariants.local_problem(c.state)
             if bad is not None and found is None:
