@@ -4,10 +4,10 @@ Sets up SPHERIC 2 at `--dp` on the GPU, runs `--warmup` steps (a state in motion
 times the interior forces (k_forces_f and k_forces_b, one `forces` call) for each
 variant of the fluid kernel, interleaved over `--rounds`, on the same arrays, and
 compares every variant's accelerations and density rates with the first one's.
-A variant is KERNEL:MAXREG:BLOCK[:FLAG ...] (KERNEL f or fv: cuda_kernels.FORCES; flags:
-notrim, fv with whole cells, as right after a step that moved rows since the sort; u1 / u2,
-fv's candidates one or two a turn, cuda_kernels.UNROLL; noself, fv's candidate test without
-the r^2 < 1e-18 cut, cuda_kernels.SELF_CUT). The cells are
+A variant is KERNEL:MAXREG:BLOCK[:FLAG ...] (KERNEL f or fv, benchmarks/cuda_force_variants.py;
+flags: notrim, fv with whole cells, as right after a step that moved rows since the sort;
+u1 / u2, fv's candidates one or two (production) a turn; selfcut, fv's candidate test with
+the r^2 < 1e-18 cut, noself without it (production)). The cells are
 sorted again before the timings, so fv trims its rows with no slack.
 Also prints the device memory held per particle by array, after numba's deferred
 frees are flushed.
@@ -39,6 +39,7 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     from numba import cuda
+    from benchmarks import cuda_force_variants as V
     from benchmarks.gpu_bench import spheric2
     from sphgraph.backends.compute import cuda_kernels as CK
     from sphgraph.solver import Simulation
@@ -49,17 +50,15 @@ def main(argv=None):
     st = sim.contexts[0].state
     dv = st.extra["dev"]
     n = dv.n
-    keep = (CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL, CK.SELF_CUT)
+    keep = (CK.MAXREG, CK.FORCE_BLOCK)
 
     sim.compute.build_cells(st)          # freshly sorted: fv trims its rows with no slack
     cuda.synchronize()
 
     def setv(v):
         f, mr, fb, *flags = v.split(":")
-        CK.FORCES = f
+        V.select(forces=f, unroll=1 if "u1" in flags else 2, self_cut="selfcut" in flags)
         CK.MAXREG, CK.FORCE_BLOCK = int(mr), int(fb)
-        CK.UNROLL = 2 if "u2" in flags else (1 if "u1" in flags else keep[3])
-        CK.SELF_CUT = False if "noself" in flags else keep[4]
         dv.moved = np.inf if "notrim" in flags else 0.0
 
     def outputs():
@@ -90,7 +89,8 @@ def main(argv=None):
                 sim.compute.forces(st, "interior")
             cuda.synchronize()
             res["variants"][v]["times_ms"].append((time.perf_counter() - t0) / a.reps * 1e3)
-    CK.FORCES, CK.MAXREG, CK.FORCE_BLOCK, CK.UNROLL, CK.SELF_CUT = keep
+    CK.MAXREG, CK.FORCE_BLOCK = keep
+    V.select()
     dv.moved = 0.0
     pairs = sim.compute.count_pairs(st)
     base = None

@@ -1,11 +1,11 @@
 """Registers, spills and the load instructions of the float32 force kernels, without a GPU.
 
-Compiles k_forces_f / k_forces_b for SPHERIC 2 to PTX with numba-cuda (NVVM only, no
+Compiles the force kernels (k_forces_fv / k_forces_bv, as k_forces_f / k_forces_b) for SPHERIC 2 to PTX with numba-cuda (NVVM only, no
 device), assembles it for sm_90 with ptxas at the register cap the backend uses, and
 prints ptxas' resource report and the global-load widths of the PTX; with `cuobjdump` on
 the PATH also the SASS (`--dump DIR`: NAME.sass) and its instruction count. Needs
 numba-cuda, NVRTC and a CUDA toolkit's ptxas on the PATH (not part of the default
-install). On the development VM (2026-12-02): a separate virtual environment with
+install). On the development VM: a separate virtual environment with
 `numba==0.68.1 "numpy<2.5" numba-cuda==0.30.4 nvidia-cuda-nvrtc==13.0.*`, this project
 installed into it, `CUDA_HOME=/usr/local/cuda-13.0` with its `bin` (ptxas) on the PATH, and
 the `bin` folders of the wheels `nvidia-cuda-cuobjdump` and `nvidia-cuda-nvdisasm`
@@ -36,7 +36,8 @@ def main(argv=None):
     ap.add_argument("--maxreg", type=int, default=None, help="register cap (default: the backend's)")
     ap.add_argument("--dp", type=float, default=0.03)
     ap.add_argument("--dump", default=None, help="write the PTX and SASS here")
-    ap.add_argument("--forces", default=None, help="f or fv (default: the backend's)")
+    ap.add_argument("--forces", default="fv", choices=("f", "fv"),
+                    help="fv: the backend's; f: benchmarks/cuda_force_variants.py's whole-cell kernels")
     a = ap.parse_args(argv)
     from numba import cuda, types as T
     from sphgraph.backends.compute import cuda_kernels as CK
@@ -52,8 +53,10 @@ def main(argv=None):
     sig_f = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, i64, i64, f32, f32, f32,
                                                           a32, a32, a32, a32, a32, ai8, a32)
     sig_b = (a64, a64, a64, a32, a32, i64, i64) + geo + (i64, a32, a32, a32, a32, a32, ai8, a32)
-    CK.FORCES = a.forces or CK.FORCES
-    if CK.FORCES != "f":   # k_forces_fv
+    if a.forces == "f":    # benchmarks/cuda_force_variants.py: whole cells, scalar loads
+        from benchmarks import cuda_force_variants as V
+        V.select(forces="f")
+    else:                  # production: k_forces_fv / k_forces_bv
         sig_f = (a32, a32, i64, i64, ai32, i64) + (f32,) * 6 + (i64,) * 7 + (f32,) * 3 + (a32,) * 5 + (ai8, a32)
         sig_b = sig_f                       # k_forces_bv: the same arguments
     mr = CK.MAXREG if a.maxreg is None else a.maxreg

@@ -379,7 +379,31 @@ def roofline():
     return {"d2d_copy_GBps_read_plus_write": 2 * a.nbytes / dt / 1e9}
 
 
+def apply_knobs(env=None) -> dict:
+    """The force kernels' tuning knobs of benchmark sessions (benchmarks/gpu_session.sh), read
+    here and not by the backend: SPHGRAPH_CUDA_MAXREG (register cap), SPHGRAPH_CUDA_FORCE_BLOCK
+    (block size), SPHGRAPH_CUDA_FORCES=f and SPHGRAPH_CUDA_UNROLL=1
+    (benchmarks/cuda_force_variants.py). Returns the ones set."""
+    import os
+    env = os.environ if env is None else env
+    got = {k: env[k] for k in ("SPHGRAPH_CUDA_MAXREG", "SPHGRAPH_CUDA_FORCE_BLOCK", "SPHGRAPH_CUDA_FORCES",
+                               "SPHGRAPH_CUDA_UNROLL") if k in env}
+    if not got:
+        return got
+    from sphgraph.backends.compute import cuda_kernels as CK
+    if "SPHGRAPH_CUDA_MAXREG" in got:
+        CK.MAXREG = int(got["SPHGRAPH_CUDA_MAXREG"])
+    if "SPHGRAPH_CUDA_FORCE_BLOCK" in got:
+        CK.FORCE_BLOCK = int(got["SPHGRAPH_CUDA_FORCE_BLOCK"])
+    if "SPHGRAPH_CUDA_FORCES" in got or "SPHGRAPH_CUDA_UNROLL" in got:
+        sys.path.insert(0, str(ROOT))
+        from benchmarks import cuda_force_variants as V
+        V.select(forces=got.get("SPHGRAPH_CUDA_FORCES", "fv"), unroll=int(got.get("SPHGRAPH_CUDA_UNROLL", 2)))
+    return got
+
+
 def main(argv=None):
+    knobs = apply_knobs()
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dp", type=float, nargs="+", default=None, help="default 0.01 0.006")
     ap.add_argument("--particles", type=float, nargs="+", default=[],
@@ -413,7 +437,7 @@ def main(argv=None):
     for want in a.particles:
         dps.append(dp_for_particles(int(want)))
         _say(f"{int(want):,} particles at most: dp {dps[-1]}")
-    res = {"runs": [], "roofline": None}
+    res = {"runs": [], "roofline": None, "knobs": knobs}
     if not a.lean:
         try:
             res["roofline"] = roofline()

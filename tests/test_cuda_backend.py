@@ -154,10 +154,10 @@ def test_retarget_casts_float_literals():
     stay in float32 instead of numba's float64 literals)."""
     script = textwrap.dedent('''
         import json, numpy as np
-        from sphgraph.backends.compute import cuda_kernels as CK
+        from sphgraph.backends.compute.cuda_retarget import _clone
         from sphgraph.physics.kernels import grad_factor
-        f32 = CK._clone(grad_factor, np.float32, {})
-        f64 = CK._clone(grad_factor, np.float64, {})
+        f32 = _clone(grad_factor, np.float32, {})
+        f64 = _clone(grad_factor, np.float64, {})
         c32 = [type(c).__name__ for c in f32.__code__.co_consts if isinstance(c, (float, np.floating))]
         c64 = [type(c).__name__ for c in f64.__code__.co_consts if isinstance(c, (float, np.floating))]
         print(json.dumps({"c32": c32, "c64": c64}))
@@ -168,10 +168,11 @@ def test_retarget_casts_float_literals():
 
 
 FORCES_SCRIPT = textwrap.dedent('''
-    import json, numpy as np
+    import json, sys, numpy as np
+    sys.path.insert(0, ROOT)
     from sphgraph.scene import Scene
     from sphgraph.solver import Simulation
-    from sphgraph.backends.compute import cuda_kernels as CK
+    from benchmarks import cuda_force_variants as V
     d = {"format": 1, "name": "q3", "dim": 3, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
          "domain": {"min": [-0.2, -0.2, -0.2], "max": [0.6, 0.5, 0.6]},
          "physics": {"integrator": "verlet", "cell_size": "h", "coefh": 1.1547005383792515,
@@ -179,7 +180,7 @@ FORCES_SCRIPT = textwrap.dedent('''
          "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.15, 0.15, 0.15]}],
          "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [0.2, 0.2, 0.2], "layers": 1}]}
     d["physics"]["integrator"] = INTEGRATOR
-    CK.FORCES = "f"
+    V.select(forces="f")
     sim = Simulation(Scene.from_dict(d, source="<t>"), backend="numba-cuda", precision="float64")
     sim.step()
     st = sim.contexts[0].state
@@ -191,7 +192,7 @@ FORCES_SCRIPT = textwrap.dedent('''
         sim.compute.integrate(st, 1, "symplectic", False)
     res = {}
     for v in ("f", "fv"):
-        CK.FORCES = v
+        V.select(forces=v)
         dv.A()["ar"].copy_to_device(np.full(dv.n, np.nan))   # poison: every row must be written
         dv.A()["visc"].copy_to_device(np.zeros(1))           # the viscous maximum, from this call only
         sim.compute.forces(st, "interior")
@@ -207,12 +208,13 @@ FORCES_SCRIPT = textwrap.dedent('''
 @pytest.mark.parametrize("integrator", ["verlet", "symplectic"])
 def test_simulator_fluid_force_kernels_sum_alike(integrator):
     """k_forces_fv / k_forces_bv (16-byte record loads, cell ranges from the relative
-    positions in the run's type, rows trimmed to the sphere's chord) against k_forces_f /
-    k_forces_b (whole cells) on one 3D state in the simulator, right after a sort and
+    positions in the run's type, rows trimmed to the sphere's chord) against
+    benchmarks/cuda_force_variants.py's k_forces_f / k_forces_b (whole cells) on one 3D state in the simulator, right after a sort and
     (Symplectic) after the predictor moved the rows: the same sums in the same order
     (bit-identical), every row written."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
-    script = f"INTEGRATOR = {integrator!r}\n" + FORCES_SCRIPT
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    script = f"INTEGRATOR = {integrator!r}\nROOT = {root!r}\n" + FORCES_SCRIPT
     r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-4000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
@@ -231,8 +233,8 @@ def test_trimmed_row_holds_exactly_the_chord():
     along the row) returns exactly the rows whose coordinate lies in [lo, hi] when lo
     lies in or below the first cell and hi in or above the last (as the force kernels
     ask: the row's cells come from the same chord)."""
-    from sphgraph.backends.compute import cuda_kernels as CK
-    trimmed = getattr(CK._trimmed, "py_func", CK._trimmed)
+    from sphgraph.backends.compute.cuda_forces import _trimmed
+    trimmed = getattr(_trimmed, "py_func", _trimmed)
     rng = np.random.default_rng(3)
     for trial in range(300):
         ncell = int(rng.integers(1, 7))

@@ -13,6 +13,7 @@ from sphgraph.physics import drop_stale_cache
 
 drop_stale_cache(__file__)  # before the cached kernels below are loaded
 
+from sphgraph.cells import cell_window  # noqa: E402
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
 from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
@@ -40,7 +41,8 @@ def forces(dpos, dvel, drho, dpress, dkind,
     nm = dims[1]
     ns = dims[2]
     for i in prange(dpos.shape[0]):
-        # cell range around i along each permuted axis, clipped to the source grid
+        # cell range around i along each permuted axis, clipped to the source grid: the range
+        # of sphgraph.cells.cell_window, written out (through it this loop is ~3 % slower in 3D)
         lo0 = 0
         hi0 = 0
         lo1 = 0
@@ -577,21 +579,16 @@ def count_pairs(dpos, dkind, spos, skind, start, origin, inv_size, dims, axes, r
     nf = dims[0]
     nm = dims[1]
     for i in prange(dpos.shape[0]):
-        lo = np.zeros(3, np.int64)
-        hi = np.zeros(3, np.int64)
-        for k in range(3):
-            a = axes[k]
-            if a >= 0:
-                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
-                lo[k] = max(c - reach, 0)
-                hi[k] = min(c + reach, dims[k] - 1)
+        lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
+            dpos[i, 0], dpos[i, 1], dpos[i, 2] if dim == 3 else 0.0, origin[0], origin[1], origin[2], inv_size,
+            dims[0], dims[1], dims[2], axes[0], axes[1], axes[2], reach)
         n = 0
-        for c2 in range(lo[2], hi[2] + 1):
-            for c1 in range(lo[1], hi[1] + 1):
+        for c2 in range(lo2, hi2 + 1):
+            for c1 in range(lo1, hi1 + 1):
                 row = (c2 * nm + c1) * nf
-                if lo[0] > hi[0]:
+                if empty:
                     continue
-                for j in range(start[row + lo[0]], start[row + hi[0] + 1]):
+                for j in range(start[row + lo0], start[row + hi0 + 1]):
                     if dkind[i] != 0 and skind[j] != 0:
                         continue
                     r2 = 0.0

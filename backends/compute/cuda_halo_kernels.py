@@ -13,7 +13,7 @@ take targets and sources from different arrays), and the reduction adds a halo p
 those rows only (`k_reduce_ranged`).
 
 The pair physics and the neighbour loop are the interior kernels' own device functions
-(cuda_kernels: `_window`, `_row_cut`, `_trimmed`, `_fv_part`, `bound_pair`): the same
+(cuda_forces: `_window`, `_row_cut`, `_trimmed`, `_fv_part`, `bound_pair`): the same
 sums in the same order as an interior pass over the same sources.
 """
 import math  # noqa: F401  (the cloned device functions use it)
@@ -26,8 +26,9 @@ from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
 from sphgraph.physics.interact import bound_pair  # noqa: F401
 
 from . import cuda_kernels as CK
-from .cuda_kernels import (SIMULATOR, _clone, _fv_part, _row_cut, _store_boundary, _store_fluid,  # noqa: F401
-                           _trimmed, _warp_max_into, _window, at, load4)
+from .cuda_forces import (_fv_part, _row_cut, _store_boundary, _store_fluid, _trimmed,  # noqa: F401
+                          _warp_max_into, _window)
+from .cuda_retarget import SIMULATOR, _clone, at, load4  # noqa: F401
 
 RT = np.float64
 
@@ -116,10 +117,10 @@ def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, j0, j1, False, mf, UNR, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, b0, b1, True, mb, UNR, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, False, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
@@ -287,11 +288,10 @@ def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar) -> types.SimpleNames
     fm = dt == np.float32
     mr = CK.MAXREG if fm else 0
     pc = np.ascontiguousarray(prm, dt)
-    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), mr, CK.UNROLL)
+    key = (dt.str, pc.tobytes(), int(kernel_id), int(ddt_kind), int(laminar), mr)
     if key not in _FORCES:
         memo = {}
-        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar), "UNR": CK.UNROLL,
-                 "SELF_CUT": CK.SELF_CUT}
+        extra = {"PRMC": pc, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar)}
         out = {}
         for name in ("k_halo_fv", "k_halo_bv"):
             fn = _clone(globals()[name], dt, memo, extra)
