@@ -233,7 +233,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
         visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
-@njit(parallel=True, fastmath=True, cache=True)
+@njit(parallel=True, cache=True)
 def forces_df(dpos, dvel, drho, dpress, dkind,
            spos, svel, srho, spress, skind,
            start, origin, inv_size, dims, axes, reach,
@@ -241,7 +241,9 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
     """`forces`, and in the same pass `ddk` = K_a = sum_b k_ab over the fluid sources
     (`interact.diffusion_coef`) for the DuFort-Frankel diffusion step (`verlet`); boundary
     sources add nothing (where they cancel a's diffusion, `reduce_parts` zeroes K_a with its
-    term). A kernel of its own, so that `forces` (the default path) is compiled as it was."""
+    term). A kernel of its own, so that `forces` (the default path) is compiled as it was.
+    Without fastmath: with it, the compiled code (and the run's bits) depended on which
+    kernels the process had compiled before this one."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
     ddt_kind = opt[O_DDT]
