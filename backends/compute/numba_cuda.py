@@ -1333,6 +1333,18 @@ class NumbaCUDA(ComputeBackend):
         c = state.consts
         return dt_from_terms(a2, v2, vm, c.h, c.c0, state.cfl)
 
+    @staticmethod
+    def _stage_start(dv):
+        """The Symplectic stage-start float64 positions (px0, py0, pz0) of the rows'
+        capacity: written by the predictor, read by the corrector of the same step (no
+        sort or migration between them), allocated on first use."""
+        A = dv.arrays
+        m = max(dv.n, dv.cap, 1)
+        if "px0" not in A or A["px0"].shape[0] < m:
+            for ax in "xyz":
+                A["p" + ax + "0"] = dev_array(m if (ax != "z" or dv.dim == 3) else 1, np.float64)
+        return A["px0"], A["py0"], A["pz0"]
+
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         dv = state.extra["dev"]
         k = self._k(state)
@@ -1347,11 +1359,14 @@ class NumbaCUDA(ComputeBackend):
             if integrator == "verlet":
                 k.k_verlet[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
                                         A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
-                                        A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, bool(euler), rho0)
+                                        A["ax"], A["ay"], A["az"], A["ar"], A["ar"], n, dim, dt, bool(euler),
+                                        rho0, False)
             else:
-                # Symplectic stage-start velocity and density reuse the Verlet history slots
+                # Symplectic stage-start velocity and density reuse the Verlet history slots;
+                # the stage-start positions live only from the predictor to the corrector
+                p0 = self._stage_start(dv)
                 kern = k.k_sym_predict if stage == 1 else k.k_sym_correct
-                kern[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
+                kern[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"], *p0,
                                   A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
                                   A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, rho0)
             # how far a row may have moved since the sort (k_forces_fv's trim slack): the
