@@ -234,7 +234,7 @@ def layout(fields):
 
 
 def split(buf, lay):
-    """Typed views of a flat uint8 buffer (host or device) by a _layout."""
+    """Typed views of a flat uint8 buffer (host or device) by a `layout`."""
     return {k: buf[o:o + dt.itemsize * c].view(dt) for k, (o, dt, c) in lay.items()}
 
 
