@@ -39,7 +39,8 @@ def device_grid(box_lo, box_hi, cell_size, axes):
 
 
 class CudaCells:
-    """NumbaCUDA's sort: build_cells and the scan, permutation and packing it uses."""
+    """NumbaCUDA's sort: build_cells and the scan, permutation and packing it uses (also
+    used by the migration, cuda_rows, and the integration, cuda_step_dispatch)."""
 
     def _scan(self, dv, k, counts, out, n, level=0, tmp=None):
         """Exclusive scan of counts[0:n] into out[0:n] (device, recursive over block sums);
@@ -133,7 +134,7 @@ class CudaCells:
         A = dv.arrays
         k.k_gather4[b, CK.BLOCK](A["vel4"], perm, n, A["pos4"])
         k.k_copy[CK.blocks(4 * n), CK.BLOCK](A["pos4"], 4 * n, A["vel4"])
-        hist = getattr(dv, "integrator", "verlet") == "verlet"   # Symplectic: history rewritten each step
+        hist = dv.integrator in (None, "verlet")   # Symplectic: history rewritten each step
         for g in self._permute_groups(dv, hist):
             arrs = [A[nm] for nm in g]
             views, off = [], 0               # bytes into the buffer, a multiple of each width
@@ -151,7 +152,7 @@ class CudaCells:
     def _permute_groups(dv, hist):
         """_permute's arrays in groups of at most three and 16 bytes a row, widest first
         (cached per device state: the same every sort)."""
-        cache = dv.__dict__.setdefault("_permute_groups", {})
+        cache = dv.permute_groups
         if hist not in cache:
             A = dv.arrays
             names = ["p" + VEC[d] for d in range(dv.dim)]

@@ -17,7 +17,7 @@ from .cuda_memory import VEC, count_bytes, dev_array, layout, split
 
 
 class CudaHaloDispatch:
-    """NumbaCUDA's halo receive and ipc halo forces."""
+    """NumbaCUDA's halo receive and ipc halo forces (a mixin, as the others)."""
 
     def prepare_halo(self, state, halo) -> None:
         """Halo rows to the device, sorted by cell on the host (sphgraph.cells.build_grid):
@@ -114,7 +114,7 @@ class CudaHaloDispatch:
             dv.halo_ranges.pop(side, None)
             return
         d = -1 if side == 1 else 1
-        _, _, fb, bb = CH.edge_ranges(self, state, dv, dv.__dict__["domain"])[d]
+        _, _, fb, bb = CH.edge_ranges(self, state, dv, dv.domain)[d]
         ro = 0 if d < 0 else 4         # the targets' exact ranges in pick8 (a0, b0, a1, b1)
         buf = dv.part_buffer(part, max(dv.n, dv.cap, 1))
         dv.halo_ranges[side] = ro

@@ -86,6 +86,21 @@ class DeviceState:
         self.vmax = None                            # (step, fluid rows' fastest speed) from dt_local
         self.sort_gen = 0                           # sorts so far (what an edge's row ranges belong to)
         self.halo_ranges = {}                       # halo side -> own target rows (ipc halos; reduce_forces)
+        self.host_obj = None                        # the host Particles the device rows were uploaded from
+        self.integrator = None                      # the integrator of the last integrate (None: none yet)
+        self._scratch = {}                          # scratch views (scratch)
+        self.permute_groups = {}                    # cuda_cells._permute_groups' cache
+        # --halo-transport ipc (cuda_halo)
+        self.domain = None                          # the slabs of the last device edge (the halo forces' cut)
+        self.edge_slots = {}                        # message tag -> this rank's edge buffer
+        self.edge_peers = {}                        # (rank, tag) -> a peer's buffer mapped here
+        self.edge_ranges = None                     # (sort_gen, cut, ranges) of the current sort
+        self.edge_bound = None                      # (cut, row bounds by direction) from the check
+        self.band_for = None                        # the cut the band counts were launched for
+        self.pinned_i8 = None                       # pinned host copies of pick8 and band
+        self.pinned_band = None
+        self.gen_pending = []                       # generation numbers to check (other processes)
+        self.gen_pinned = []                        # their pinned host copies
 
     # the arrays the sort and the migration read by name (prepare / make_views make them)
     px = property(lambda self: self.arrays["px"])
@@ -134,7 +149,7 @@ class DeviceState:
             return None
         # kept: a numba view costs tens of microseconds of host time, and the sort asks
         # for the same few every step
-        c = self.__dict__.setdefault("_scratch", {})
+        c = self._scratch
         key = (id(p4), np.dtype(dtype).str, m, off)
         v = c.get(key)
         if v is None or v[0] is not p4:
@@ -200,11 +215,10 @@ class DeviceState:
     def nbytes(self) -> int:
         seen = set()
         total = 0
-        slots = self.__dict__.get("edge_slots", {}).values()     # cuda_halo (ipc transport)
-        scans = [a for t in self.__dict__.get("edge_scan", {}).values() for a in t]
+        slots = self.edge_slots.values()
         for a in list(self.arrays.values()) + self.scan_tmp + [h["buf"] for h in self.halo_pool] + \
                 [x for b in self.parts.values() for x in b.values()] + \
-                [b for e in slots for b in [e["buf"]] + e["retired"]] + scans:
+                [b for e in slots for b in [e["buf"]] + e["retired"]]:
             if id(a) not in seen:
                 seen.add(id(a))
                 total += a.nbytes

@@ -20,7 +20,8 @@ def _plain_slabs(domain, *methods) -> bool:
 
 
 class CudaRows:
-    """NumbaCUDA's multi-rank row protocol: displaced rows and edges."""
+    """NumbaCUDA's multi-rank row protocol: displaced rows and edges (a mixin: the sort's
+    _scan / _permute, prepare, sync_host and the lanes' _k / _s come from the others)."""
 
     def take_displaced(self, state, domain) -> dict:
         """Rows that left the slab (as Slabs.take_displaced). The check's bounding box
@@ -116,7 +117,7 @@ class CudaRows:
             id=np.empty(n, np.int64), kind=np.empty(n, np.int8), pos=np.empty((n, dim), p.pos.dtype),
             vel=np.empty((n, dim), p.vel.dtype), rho=np.empty(n, p.rho.dtype),
             vel_m1=np.empty((n, dim), p.vel_m1.dtype), rho_m1=np.empty(n, p.rho_m1.dtype))
-        dv.__dict__["host_obj"] = q
+        dv.host_obj = q
         dv.host_stale = True
 
     def add_displaced(self, state, domain, rows, built: bool) -> None:
@@ -142,7 +143,7 @@ class CudaRows:
         m = sum(r.n for r in rows)
         # through the host when the host rows are the truth (take_displaced went through
         # the host), there is no room, or an id needs more than the device's int32
-        if (dv is None or dv.__dict__.get("host_obj") is not state.particles or dv.n + m > dv.cap or
+        if (dv is None or dv.host_obj is not state.particles or dv.n + m > dv.cap or
                 (dv.arrays["id"].dtype == np.int32 and max(int(r.id.max()) for r in rows) >= 2 ** 31 - 1)):
             self.sync_host(state)
             domain.add_rows(state, rows)
@@ -201,7 +202,7 @@ class CudaRows:
             self.sync_host(state)
             return domain.edge(state, direction)
         if slot is not None:
-            dv.__dict__["domain"] = domain      # the halo forces' targets: the same cut's rows
+            dv.domain = domain      # the halo forces' targets: the same cut's rows
             return CH.send_edge(self, state, dv, domain, direction, slot)
         n0, n1, n2 = (int(x) for x in g["dims"])
         ncells = int(g["ncells"])

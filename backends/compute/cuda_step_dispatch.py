@@ -18,7 +18,7 @@ FRESH_PRESSURE = True
 
 
 class CudaStepDispatch:
-    """NumbaCUDA's dt terms, integration and check."""
+    """NumbaCUDA's dt terms, integration and check (a mixin, as the others)."""
 
     def dt_local(self, state) -> float:
         dv = state.extra["dev"]
@@ -53,7 +53,7 @@ class CudaStepDispatch:
         ft = dv.dtype.type
         dt = ft(state.dt)
         rho0 = ft(state.consts.prm[P_RHO0])
-        dv.__dict__["integrator"] = integrator
+        dv.integrator = integrator
         if n:
             b = CK.blocks(n)
             if integrator == "verlet":

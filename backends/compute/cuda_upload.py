@@ -19,7 +19,7 @@ UPLOAD_ROWS = 1 << 23    # rows a chunk of the upload (prepare): a 256 MiB stagi
 
 
 class CudaUpload:
-    """NumbaCUDA's upload and host copies."""
+    """NumbaCUDA's upload and host copies (a mixin: NumbaCUDA supplies the rest)."""
 
     def prepare(self, state) -> None:
         """Upload the host particles (all of them: called at set-up and after rows moved)."""
@@ -27,7 +27,7 @@ class CudaUpload:
         dim = p.dim
         dt = np.dtype(state.dtype)
         old = state.extra.get("dev")
-        if old is not None and old.__dict__.get("host_obj") is p and old.n == p.n:
+        if old is not None and old.host_obj is p and old.n == p.n:
             return   # same host row set as on the device (no rows left or came): keep the device rows
         lo = hi = None
         if p.n:     # the rows' bounding box (the first grid), one parallel pass (upload_kernels)
@@ -97,18 +97,15 @@ class CudaUpload:
         if p.n:
             dv.box[0, :dim] = lo
             dv.box[1, :dim] = hi
-        dv.__dict__["host_obj"] = p
-        if old is not None and "integrator" in old.__dict__:
-            dv.__dict__["integrator"] = old.__dict__["integrator"]
+        dv.host_obj = p
         if old is not None:     # staging and halo buffers outlive a re-upload
+            dv.integrator = old.integrator
             if old.host_busy is not None:
                 old.host_busy.synchronize()
             dv.pinned_xfer, dv.halo_pool, dv.halo_last = old.pinned_xfer, old.halo_pool, old.halo_last
             # --halo-transport ipc: this rank's edge buffers (their handles went to the peers
             # once) and the peers' buffers it has mapped (cuda_halo)
-            for key in ("edge_slots", "edge_peers", "edge_scan"):
-                if key in old.__dict__:
-                    dv.__dict__[key] = old.__dict__[key]
+            dv.edge_slots, dv.edge_peers = old.edge_slots, old.edge_peers
         state.extra["dev"] = dv
         count_bytes(state, "h2d_bytes", "upload", up)
         state.parts = {}
