@@ -14,7 +14,7 @@ max_r |N_r - mean| / mean of the balanced quantity). Policies:
              fluid-particle capacity, asked of the compute backend at every check
              (`ComputeBackend.particle_capacity`: the `max_particles_per_rank` option
              on CPU and mock; free device memory / measured bytes per particle on
-             GPU, see `device_capacity`); a scene that cannot fit is an InputError
+             GPU, see `backends.compute.base.device_capacity`); a scene that cannot fit is an InputError
 
 Cuts are coordinates along the split axis, found on a global histogram of the
 fluid positions with bins much finer than dp (particle granularity up to ties
@@ -185,21 +185,6 @@ def target_loads(cfg: BalanceConfig, total: float, speed, caps) -> np.ndarray:
         free &= ~over
         left = total - t[~free].sum()
     return t
-
-
-def device_capacity(free_bytes: float, bytes_per_particle: float, held_rows: int = 0,
-                    fixed_rows: int = 0, margin: float = 0.8) -> int | None:
-    """Fluid particles a device can hold for one rank.
-
-    Rows it holds now (`held_rows`, at `bytes_per_particle` each, measured from the rank's
-    allocations) plus what `margin` of the `free_bytes` holds at that size, less the rows
-    that are not the balanced quantity (`fixed_rows`: boundary). The margin leaves room
-    for what grows with N besides the rows (cells, scan buffers, halos). None when no
-    size was measured (nothing allocated yet)."""
-    if not bytes_per_particle > 0:
-        return None
-    rows = held_rows + int(margin * max(free_bytes, 0) // bytes_per_particle)
-    return max(rows - fixed_rows, 0)
 
 
 @dataclass

@@ -8,7 +8,8 @@ from sphgraph import Scene
 from sphgraph.backends.compute import numba_cuda
 from sphgraph.backends.compute.base import ComputeBackend
 from sphgraph.backends.compute.numba_cpu import NumbaCPU
-from sphgraph.balance import BalanceConfig, device_capacity, loads, solve_cuts, target_loads
+from sphgraph.backends.compute.base import device_capacity
+from sphgraph.balance import BalanceConfig, loads, solve_cuts, target_loads
 from sphgraph.errors import InputError
 from sphgraph.solver import Simulation
 

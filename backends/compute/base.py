@@ -174,3 +174,18 @@ def dt_from_terms(a2max: float, v2max: float, viscmax: float, h: float, c0: floa
     dt1 = np.sqrt(h / amax) if amax > 0 else np.inf
     dt2 = h / (max(c0, 10.0 * float(np.sqrt(v2max))) + h * viscmax)
     return float(cfl * min(dt1, dt2))
+
+
+def device_capacity(free_bytes: float, bytes_per_particle: float, held_rows: int = 0,
+                    fixed_rows: int = 0, margin: float = 0.8) -> int | None:
+    """Fluid particles a device can hold for one rank.
+
+    Rows it holds now (`held_rows`, at `bytes_per_particle` each, measured from the rank's
+    allocations) plus what `margin` of the `free_bytes` holds at that size, less the rows
+    that are not the balanced quantity (`fixed_rows`: boundary). The margin leaves room
+    for what grows with N besides the rows (cells, scan buffers, halos). None when no
+    size was measured (nothing allocated yet)."""
+    if not bytes_per_particle > 0:
+        return None
+    rows = held_rows + int(margin * max(free_bytes, 0) // bytes_per_particle)
+    return max(rows - fixed_rows, 0)

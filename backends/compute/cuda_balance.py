@@ -8,6 +8,7 @@ from numba import cuda
 
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
+from .base import device_capacity
 from .cuda_memory import VEC, host_wait
 
 
@@ -47,8 +48,7 @@ class CudaBalance:
     def particle_capacity(self, state, max_particles_per_rank=None, sharing=1) -> int | None:
         """Free device memory (split among the `sharing` ranks on this device) at the rank's
         measured bytes per allocated row, plus the rows it holds, less its boundary rows
-        (sphgraph.balance.device_capacity); never above `max_particles_per_rank`."""
-        from sphgraph.balance import device_capacity
+        (base.device_capacity); never above `max_particles_per_rank`."""
         dv = state.extra.get("dev")
         if dv is None or CK.SIMULATOR:
             return max_particles_per_rank
