@@ -294,16 +294,59 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     DIR from its newest valid checkpoint; SIGTERM or `walltime` seconds write a
     checkpoint and return early (`RunResult.stopped`); `invariants` checks particle
     count, ids and NaN every step.
+
+    In order: the start-up checks (`_start`), the simulation (restored from the
+    checkpoint on a restart), the output folder (`_open_output`), then the time loop
+    with its frames, samples and checkpoints (`_Run`).
     """
     from . import checkpoint as ck
-    from .io import OutputWriter, prepare_out_dir
-    from .progress import Progress
+    scene, out, write_output, precision, saved, every, walltime = _start(
+        scene, backend, comm, ranks, out, precision, end_time, max_steps, dp, comm_options, write_output,
+        checkpoint_every, restart, walltime)
+    sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
+                     precision=precision, user_tasks=user_tasks,
+                     fixed_dt=fixed_dt, comm_options=comm_options, balance=balance,
+                     particles=None if saved is None else ck.blocks_for(saved, PRECISIONS[precision]),
+                     cuts=None if saved is None else saved.cuts,
+                     decomposition_axis=None if saved is None or saved.meta["axis"] < 0
+                     else "xyz"[saved.meta["axis"]], invariants=invariants)
+    from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
+    sc = sim.scene
+    sampler = ProbeSampler(sc) if write_output and ("probes" in sc.extra or "forces" in sc.extra) else None
+    sim.probe_sampler = sampler   # its samples go into checkpoints (ck.save) and come back on restart
+    if saved is not None:
+        ck.check_scene(saved, sc)
+        ck.restore(sim, saved)
+    if not write_output and (every is not None or walltime is not None):
+        raise InputError("--checkpoint-every/--walltime: expected an output directory (write_output=True)")
+    writer, out_dir = _open_output(sim, out, saved, overwrite) if write_output else (None, None)
+    r = _Run(sim, writer, out_dir, saved, sampler, ck.Keeper(sim, out_dir, every, walltime),
+             progress, max_steps)
+    if saved is not None and every is not None and every[0] == "time" \
+            and math.isfinite(saved.meta.get("next_checkpoint", math.inf)):
+        r.keeper.next_time = float(saved.meta["next_checkpoint"])
+    r.run()
+    return RunResult(out_dir=out_dir, steps=sim.step_count, time=sim.time, wall_s=r.wall,
+                     compile_s=r.compile_s, particles=sim.n_total, fluid_particles=sim.n_fluid, dim=sim.dim,
+                     backend=sim.compute.name, comm=sim.comm.name, ranks=sim.nranks,
+                     precision=sim.precision, integrator=sim.integrator, schedule=sim.schedule.name,
+                     device=sim.compute.device_name(), frames=r.frames,
+                     task_seconds=sim.scheduler.times.seconds_by_kind(first_step=r.start_step + 1),
+                     timing=sim.scheduler.times, start_step=r.start_step, stopped=r.stopped,
+                     checkpoint=r.keeper.last_path)
 
+
+def _start(scene, backend, comm, ranks, out, precision, end_time, max_steps, dp, comm_options, write_output,
+           checkpoint_every, restart, walltime):
+    """The start-up checks, cheapest first and each before anything of its size exists;
+    on a restart the run folder, its newest checkpoint and its precision. Returns (scene
+    with the overrides, out, write_output, precision, checkpoint or None, every,
+    walltime)."""
+    from . import checkpoint as ck
     from .files import check_out_dir
     from .preflight import check_backend, check_comm, check_ranks_fit
     from .ranges import check_flag
 
-    # start-up checks, cheapest first and each before anything of its size exists
     every = ck.parse_every(checkpoint_every)
     walltime = ck.parse_walltime(walltime)
     if max_steps is not None:
@@ -313,7 +356,7 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
     if not isinstance(scene, Scene):
         scene = Scene.from_toml(scene)
     if dp is not None or end_time is not None:
-        scene, dp, end_time = scene.with_overrides(dp=dp, end_time=end_time), None, None
+        scene = scene.with_overrides(dp=dp, end_time=end_time)
     check_ranks_fit(scene, ranks)
     if write_output and restart is None:
         check_out_dir(out if out is not None else Path("out") / scene.name)
@@ -328,120 +371,120 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
             raise InputError(f"--precision: expected the checkpoint's {saved.meta['precision']} "
                              f"on restart, got {precision}")
         precision = saved.meta["precision"]
-    sim = Simulation(scene, backend=backend, comm=comm, ranks=ranks, schedule=schedule,
-                     precision=precision, dp=dp, end_time=end_time, user_tasks=user_tasks,
-                     fixed_dt=fixed_dt, comm_options=comm_options, balance=balance,
-                     particles=None if saved is None else ck.blocks_for(saved, PRECISIONS[precision]),
-                     cuts=None if saved is None else saved.cuts,
-                     decomposition_axis=None if saved is None or saved.meta["axis"] < 0
-                     else "xyz"[saved.meta["axis"]], invariants=invariants)
-    scene = sim.scene
-    t_end = scene.end_time
-    from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
-    sampler = ProbeSampler(scene) if write_output and ("probes" in scene.extra or "forces" in scene.extra) else None
-    sim.probe_sampler = sampler   # its samples go into checkpoints (ck.save) and come back on restart
-    if saved is not None:
-        ck.check_scene(saved, scene)
-        ck.restore(sim, saved)
-    root = sim.comm.is_root
-    writer = None
-    out_dir = None
-    if write_output:
-        out_dir = Path(out) if out is not None else Path("out") / scene.name
-        if root and saved is not None:
-            writer = OutputWriter.open_existing(out_dir)
-            _keep_exclusions(out_dir, sim, saved.step)
-            # frames after the checkpoint go; so does an end-of-run frame at its step (not in its count)
-            stray = [i for i, _, s in writer.frames if s == saved.step and i >= int(saved.meta["frames"])]
-            writer.truncate(after_step=saved.step - 1 if stray else saved.step)
-            ck.prune(out_dir, keep=ck.KEEP, after_step=saved.step)
-        elif root:
-            prepare_out_dir(out_dir, overwrite=overwrite)
-            ck.prune(out_dir, keep=0)   # a new run: an earlier run's checkpoints must not be restarted
-            writer = OutputWriter(out_dir, sim.root_attrs(sim.compute.name, sim.comm.name),
-                                  sim.dim, sim.precision)
-    elif every is not None or walltime is not None:
-        raise InputError("--checkpoint-every/--walltime: expected an output directory (write_output=True)")
-    keeper = ck.Keeper(sim, out_dir, every, walltime)
-    if saved is not None and every is not None and every[0] == "time" \
-            and math.isfinite(saved.meta.get("next_checkpoint", math.inf)):
-        keeper.next_time = float(saved.meta["next_checkpoint"])
-    prog = Progress(t_end, enabled=bool(progress) and root)
-    frames = 0 if saved is None else int(saved.meta["frames"])
-    last_saved = -1 if saved is None else int(saved.meta["last_saved"])  # step of the last frame
-    start_step = sim.step_count
+    return scene, out, write_output, precision, saved, every, walltime
 
-    def save_frame():
-        nonlocal frames, last_saved
+
+def _open_output(sim, out, saved, overwrite):
+    """(writer on the root, None elsewhere; the output folder). A restart reopens the
+    folder's output.h5 and drops what came after the checkpoint; a new run prepares the
+    folder and removes an earlier run's checkpoints."""
+    from . import checkpoint as ck
+    from .io import OutputWriter, prepare_out_dir
+    out_dir = Path(out) if out is not None else Path("out") / sim.scene.name
+    writer = None
+    if sim.comm.is_root and saved is not None:
+        writer = OutputWriter.open_existing(out_dir)
+        _keep_exclusions(out_dir, sim, saved.step)
+        # frames after the checkpoint go; so does an end-of-run frame at its step (not in its count)
+        stray = [i for i, _, s in writer.frames if s == saved.step and i >= int(saved.meta["frames"])]
+        writer.truncate(after_step=saved.step - 1 if stray else saved.step)
+        ck.prune(out_dir, keep=ck.KEEP, after_step=saved.step)
+    elif sim.comm.is_root:
+        prepare_out_dir(out_dir, overwrite=overwrite)
+        ck.prune(out_dir, keep=0)   # a new run: an earlier run's checkpoints must not be restarted
+        writer = OutputWriter(out_dir, sim.root_attrs(sim.compute.name, sim.comm.name), sim.dim, sim.precision)
+    return writer, out_dir
+
+
+class _Run:
+    """The time loop of `run`: steps to the end time (or `max_steps`), a frame every
+    output interval, probe samples, checkpoints when due and at the end, the stop on
+    SIGTERM/walltime; then /timing, /exclusions, /probes and /forces on every rank."""
+
+    def __init__(self, sim, writer, out_dir, saved, sampler, keeper, progress, max_steps):
+        from .progress import Progress
+        self.sim, self.writer, self.out_dir, self.saved = sim, writer, out_dir, saved
+        self.sampler, self.keeper, self.max_steps = sampler, keeper, max_steps
+        self.write_output = out_dir is not None
+        self.prog = Progress(sim.scene.end_time, enabled=bool(progress) and sim.comm.is_root)
+        self.frames = 0 if saved is None else int(saved.meta["frames"])
+        self.last_saved = -1 if saved is None else int(saved.meta["last_saved"])  # step of the last frame
+        self.next_out = sim.scene.output_interval if saved is None else float(saved.meta["next_out"])
+        self.start_step = sim.step_count
+        self.stopped = None
+        self.wall = self.compile_s = 0.0
+
+    def save_frame(self) -> None:
+        sim = self.sim
         arrays = sim.frame_arrays()
         if sim.invariants is not None:
             sim.invariants.check_frame(sim, arrays)
-        if writer is not None:
-            writer.write_frame(frames, sim.time, sim.step_count, arrays)
-        frames += 1
-        last_saved = sim.step_count
+        if self.writer is not None:
+            self.writer.write_frame(self.frames, sim.time, sim.step_count, arrays)
+        self.frames += 1
+        self.last_saved = sim.step_count
 
-    stopped = None
-    keeper.install()
-    try:
+    def save_checkpoint(self) -> None:
+        self.keeper.save(self.next_out, self.frames, self.last_saved)
+
+    def run(self) -> None:
+        sim, keeper = self.sim, self.keeper
+        keeper.install()
         try:
-            if write_output and saved is None:
-                save_frame()
-            if sampler is not None:
-                sampler.sample(sim)
-            next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
-            t0 = time.perf_counter()
-            compile_s = 0.0
-            while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
-                sim.step()
-                if sampler is not None:
-                    sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
-                if sim.step_count == start_step + 1:
-                    compile_s = time.perf_counter() - t0
-                    prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")
-                    prog.reset_clock(1)
-                if write_output and sim.time >= next_out - 1e-12:
-                    save_frame()
-                    while next_out <= sim.time + 1e-12:
-                        next_out += scene.output_interval
-                if keeper.due():
-                    keeper.save(next_out, frames, last_saved)
-                prog.update(sim.time, sim.step_count)
-                if write_output:
-                    stopped = keeper.stop_reason()
-                    if stopped is not None:
-                        if keeper.last_step != sim.step_count:
-                            keeper.save(next_out, frames, last_saved)
-                        break
-            wall = time.perf_counter() - t0
-            if stopped is None and write_output and keeper.last_step != sim.step_count:
-                # every finished run can be extended (--restart --end-time), planned or not
-                keeper.save(next_out, frames, last_saved)   # the end state, before the end frame
-            if stopped is None and write_output and frames and sim.step_count > 0 and last_saved != sim.step_count:
-                save_frame()
-            sim.comm.finish()   # a message sent but never received (a duplicate in the last step): reported
-        except NumericalError:
+            try:
+                self.loop()
+            except NumericalError:
+                keeper.uninstall()
+                self.prog.close()
+                _finish_output(self.writer, sim, self.sampler)   # on every rank: gathers the ranks' timings under MPI
+                raise
             keeper.uninstall()
-            prog.close()
-            _finish_output(writer, sim, sampler)   # on every rank: gathers the ranks' timings under MPI
+            self.prog.close()
+            _finish_output(self.writer, sim, self.sampler)
+        except Exception as e:
+            keeper.uninstall()
+            if (not isinstance(e, SphgraphError) or isinstance(e, (CommError, DiskFullError))) \
+                    and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
+                _abort_all(sim, e)
             raise
-        keeper.uninstall()
-        prog.close()
-        _finish_output(writer, sim, sampler)
-    except Exception as e:
-        keeper.uninstall()
-        if (not isinstance(e, SphgraphError) or isinstance(e, (CommError, DiskFullError))) \
-                and len(sim.comm.local_ranks) < sim.nranks:   # MPI: one rank failed; stop them all, no hang
-            _abort_all(sim, e)
-        raise
-    return RunResult(out_dir=out_dir, steps=sim.step_count, time=sim.time, wall_s=wall,
-                     compile_s=compile_s, particles=sim.n_total, fluid_particles=sim.n_fluid, dim=sim.dim,
-                     backend=sim.compute.name, comm=sim.comm.name, ranks=sim.nranks,
-                     precision=sim.precision, integrator=sim.integrator, schedule=sim.schedule.name,
-                     device=sim.compute.device_name(), frames=frames,
-                     task_seconds=sim.scheduler.times.seconds_by_kind(first_step=start_step + 1),
-                     timing=sim.scheduler.times, start_step=start_step, stopped=stopped,
-                     checkpoint=keeper.last_path)
+
+    def loop(self) -> None:
+        sim, keeper, prog, sampler = self.sim, self.keeper, self.prog, self.sampler
+        t_end, interval = sim.scene.end_time, sim.scene.output_interval
+        if self.write_output and self.saved is None:
+            self.save_frame()
+        if sampler is not None:
+            sampler.sample(sim)
+        t0 = time.perf_counter()
+        while sim.time < t_end - 1e-12 and (self.max_steps is None or sim.step_count < self.max_steps):
+            sim.step()
+            if sampler is not None:
+                sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
+            if sim.step_count == self.start_step + 1:
+                self.compile_s = time.perf_counter() - t0
+                prog.note(f"first step {self.compile_s:.2f} s (includes numba compilation)")
+                prog.reset_clock(1)
+            if self.write_output and sim.time >= self.next_out - 1e-12:
+                self.save_frame()
+                while self.next_out <= sim.time + 1e-12:
+                    self.next_out += interval
+            if keeper.due():
+                self.save_checkpoint()
+            prog.update(sim.time, sim.step_count)
+            if self.write_output:
+                self.stopped = keeper.stop_reason()
+                if self.stopped is not None:
+                    if keeper.last_step != sim.step_count:
+                        self.save_checkpoint()
+                    break
+        self.wall = time.perf_counter() - t0
+        if self.stopped is None and self.write_output and keeper.last_step != sim.step_count:
+            # every finished run can be extended (--restart --end-time), planned or not
+            self.save_checkpoint()   # the end state, before the end frame
+        if self.stopped is None and self.write_output and self.frames and sim.step_count > 0 \
+                and self.last_saved != sim.step_count:
+            self.save_frame()
+        sim.comm.finish()   # a message sent but never received (a duplicate in the last step): reported
 
 
 def _finish_output(writer, sim, sampler) -> None:
