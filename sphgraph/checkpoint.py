@@ -1,4 +1,4 @@
-"""Checkpoints and restart (issue 8 §1; docs/long-runs.md).
+"""Checkpoints and restart (docs/long-runs.md).
 
 A checkpoint is the whole solver state, enough to continue a run bit-identically
 (float64, CPU, same rank count): ``DIR/checkpoints/ckpt_<step>.h5`` holding

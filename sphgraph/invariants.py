@@ -1,4 +1,4 @@
-"""Invariants checked while running (issue 8 §5), and the memory guard of a scene.
+"""Invariants checked while running, and the memory guard of a scene.
 
 Cheap, on by default, switched off with ``--no-invariants`` /
 ``run(..., invariants=False)``. `Simulation.check` already stops on NaN in
