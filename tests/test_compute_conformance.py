@@ -95,6 +95,86 @@ class ComputeConformance:
         assert sim.compute.check(st, sim.lo, sim.hi) is None
 
 
+    # -- the rows protocol and the balancing queries (ComputeBackend's declared interface) --
+    def _stepped(self, steps=2):
+        sim = Simulation(tiny_scene(), backend=self.backend, precision="float64")
+        for _ in range(steps):
+            sim.step()
+        return sim, sim.contexts[0].state
+
+    def test_balancing_queries_match_the_rows(self):
+        sim, st = self._stepped()
+        be = sim.compute
+        a = be.host_arrays(st)
+        fl = a["kind"] == 0
+        assert be.fluid_count(st) == int(fl.sum()) > 0
+        for axis in (0, 1):
+            x = a["position"][:, axis]
+            assert be.axis_extent(st, axis) == (float(x.min()), float(x.max()))
+            edges = np.linspace(-0.1, 1.1, 13)
+            np.testing.assert_array_equal(be.fluid_histogram(st, axis, edges),
+                                          np.histogram(x[fl], bins=edges)[0])
+
+    def test_sync_host_brings_the_host_rows_up_to_date(self):
+        sim, st = self._stepped()
+        sim.compute.sync_host(st)
+        a = sim.compute.host_arrays(st)
+        p = st.particles
+        order = np.argsort(p.id)
+        np.testing.assert_array_equal(p.id[order], np.sort(a["id"]))
+        np.testing.assert_array_equal(p.pos[order], a["position"][np.argsort(a["id"])])
+
+    def test_rows_that_leave_the_slab_come_back_whole(self):
+        """take_displaced removes exactly the rows past the cut (their ids and positions as
+        the host sees them); add_displaced puts them back: the same rows, forces as before."""
+        from sphgraph.domain import Slabs
+        sim, st = self._stepped()
+        be = sim.compute
+        before = be.host_arrays(st)
+        cut = 0.15
+        up = before["position"][:, 0] >= cut
+        assert 0 < up.sum() < len(up)
+        be.check(st, sim.lo, sim.hi)            # a device backend learns its rows' box here
+        slab = Slabs(0, 0, np.array([-np.inf, cut]), reach=0.1)
+        out = be.take_displaced(st, slab)
+        assert out[-1].n == 0 and out[1].n == int(up.sum())
+        np.testing.assert_array_equal(np.sort(out[1].id), np.sort(before["id"][up]))
+        left = be.host_arrays(st)
+        np.testing.assert_array_equal(np.sort(left["id"]), np.sort(before["id"][~up]))
+        whole = Slabs(0, 0, np.array([-np.inf, np.inf]), reach=0.1)
+        be.add_displaced(st, whole, [out[1]], built=False)
+        after = be.host_arrays(st)
+        i, j = np.argsort(after["id"]), np.argsort(before["id"])
+        np.testing.assert_array_equal(after["id"][i], before["id"][j])
+        np.testing.assert_array_equal(after["position"][i], before["position"][j])
+        np.testing.assert_array_equal(after["density"][i], before["density"][j])
+
+    def test_edge_holds_the_rows_within_reach_of_the_cut(self):
+        sim, st = self._stepped()
+        be = sim.compute
+        a = be.host_arrays(st)
+        cut, reach = 0.15, 0.1
+        be.check(st, sim.lo, sim.hi)
+        be.build_cells(st)
+        slab = Slabs_for(0, cut, reach)
+        h = be.edge(st, slab, 1)
+        x = a["position"][:, 0]
+        want = np.sort(x[x >= cut - reach])
+        got = np.sort(np.asarray(h.pos)[:, 0])
+        # a device edge may send whole cell planes (a superset); never fewer rows
+        assert len(got) >= len(want)
+        assert np.isin(np.round(want, 12), np.round(got, 12)).all()
+
+    def test_counters_are_a_dict_of_numbers(self):
+        c = get("compute", self.backend)().counters()
+        assert isinstance(c, dict) and all(isinstance(v, (int, float)) for v in c.values())
+
+
+def Slabs_for(rank, cut, reach):
+    from sphgraph.domain import Slabs
+    return Slabs(rank, 0, np.array([-np.inf, cut]), reach=reach)
+
+
 class TestNumbaCPU(ComputeConformance):
     backend = "numba-cpu"
 
