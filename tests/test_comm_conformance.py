@@ -156,7 +156,26 @@ def b_rank_and_size(backend):
         assert ep.rank == r and ep.size == backend.size
 
 
-BEHAVIOURS = [b_rank_and_size, b_allreduce_min, b_halo_roundtrip, b_empty_halo, b_particles_roundtrip,
+def b_collectives_of_the_core(backend):
+    """gather, bcast, barrier and first_problem, as the core calls them: every rank of
+    the run in this process (single, mock) or one a process (MPI)."""
+    backend.barrier()
+    one_process = len(backend.local_ranks) == backend.size
+    me = backend.local_ranks[0]
+    got = backend.gather({"rank": me})
+    if one_process:
+        assert got == [{"rank": me}]
+    elif backend.is_root:
+        assert [g["rank"] for g in got] == list(range(backend.size))
+    else:
+        assert got is None
+    assert backend.bcast(("from", me)) == ("from", 0 if not one_process else me)
+    found = None if me == 0 and backend.size > 1 else (me, 7, 2)
+    first = backend.first_problem(found)
+    assert first == (found if one_process else (1, 7, 2))
+
+
+BEHAVIOURS = [b_rank_and_size, b_collectives_of_the_core, b_allreduce_min, b_halo_roundtrip, b_empty_halo, b_particles_roundtrip,
               b_empty_particles_and_none, b_gather_rows_order, b_records_every_task]
 
 
