@@ -14,31 +14,19 @@ from sphgraph.physics import drop_stale_cache
 
 drop_stale_cache(__file__)  # the kernels inline sphgraph.physics: recompile when it changes
 
-from sphgraph.cells import cell_window  # noqa: E402
-from sphgraph.config import O_DIM, O_KERNEL, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
-from sphgraph.particles import FIXED  # noqa: E402
-from sphgraph.physics.shifting import clamp, shift_pair, shift_scale  # noqa: E402
-
-# mode ids = index in sphgraph.config.SHIFTINGS (DualSPHysics TpShifting)
-NOBOUND, NOFIXED = 1, 2
+from sphgraph.config import O_DIM, O_KERNEL  # noqa: E402
+from sphgraph.physics.shifting import clamp, shift_row, shift_scale  # noqa: E402
 
 
 @njit(parallel=True, fastmath=True, cache=True)
 def shift_sums(dpos, dkind, spos, srho, skind, start, origin, inv_size, dims, axes, reach,
                prm, opt, mode, grad, div, cancel):
     """grad C, div r and the cancel flag of every fluid destination row against one
-    source set binned in a grid (overwritten; 0 for boundary rows).
-
-    A boundary neighbour cancels the shift in mode "nobound", a fixed one in "nofixed"
-    (DualSPHysics: noshift = boundp2 && (NoBound || (NoFixed && fixed))); "full" sums
-    boundary neighbours like fluid ones."""
+    source set binned in a plain grid (overwritten; 0 for boundary rows): the per-row
+    sums of sphgraph.physics.shifting.shift_row. `spos`: the sources' (n, dim) positions
+    flattened."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
-    nf = dims[0]
-    nm = dims[1]
     for i in prange(dpos.shape[0]):
         gx = 0.0 * grad[i, 0]
         gy = gx
@@ -49,29 +37,10 @@ def shift_sums(dpos, dkind, spos, srho, skind, start, origin, inv_size, dims, ax
             xa = dpos[i, 0]
             ya = dpos[i, 1]
             za = dpos[i, 2] if dim == 3 else 0.0
-            lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(xa, ya, za, origin[0], origin[1], origin[2], inv_size,
-                                                              nf, nm, dims[2], axes[0], axes[1], axes[2], reach)
-            if not empty:
-                for c2 in range(lo2, hi2 + 1):
-                    for c1 in range(lo1, hi1 + 1):
-                        row = (c2 * nm + c1) * nf
-                        for j in range(start[row + lo0], start[row + hi0 + 1]):
-                            drx = xa - spos[j, 0]
-                            dry = ya - spos[j, 1]
-                            drz = (za - spos[j, 2]) if dim == 3 else 0.0
-                            r2 = drx * drx + dry * dry + drz * drz
-                            if r2 > support2 or r2 < 1e-18:
-                                continue
-                            kb = skind[j]
-                            if kb != 0 and (mode == NOBOUND or (mode == NOFIXED and kb == FIXED)):
-                                cc = 1
-                                continue
-                            fx, fy, fz, fd = shift_pair(drx, dry, drz, r2, (mb if kb != 0 else mf) / srho[j],
-                                                        prm, kernel)
-                            gx += fx
-                            gy += fy
-                            gz += fz
-                            dv += fd
+            gx, gy, gz, dv, cc = shift_row(xa, ya, za, xa, ya, za, spos, spos, spos, dim, 1, 2, srho, 1, 0, skind,
+                                           start, 0,
+                                           origin[0], origin[1], origin[2], inv_size, dims[0], dims[1], dims[2],
+                                           axes[0], axes[1], axes[2], reach, prm, dim, kernel, mode)
         grad[i, 0] = gx
         grad[i, 1] = gy
         if dim == 3:

@@ -18,36 +18,29 @@ import types
 import numpy as np
 from numba import cuda
 
-from sphgraph.cells import cell_window
-from sphgraph.config import O_KERNEL, P_MASS_B, P_MASS_F, P_SUPPORT2
-from sphgraph.particles import FIXED
-from sphgraph.physics.shifting import clamp, shift_pair, shift_scale
+from sphgraph.config import O_KERNEL
+from sphgraph.physics.shifting import clamp, shift_row, shift_scale
 
 from . import cuda_kernels as CK
 from .base import SHIFT_PARTS
 from .cuda_halo import DeviceEdge
 
-NOBOUND, NOFIXED = 1, 2   # mode ids = index in sphgraph.config.SHIFTINGS
 
 
 # ------------------------------------------------------------------------------- kernels
 def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
-                 srx, sry, srz, srho, skind, sst, oy, oz, orho, start, split,
+                 spx, spy, spz, ps, po1, po2, sr, rs, ro, skind, start, split,
                  o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
                  prm, dim, kernel_id, mode, gx_, gy_, gz_, div_, cancel_):
-    """As cpu_shifting.shift_sums for fluid row i: cells found from the float64 position
-    (dpx..), distances from the run-type positions relative to the rank's reference
-    (drx_.., srx..). `split` > 0: a kind-split grid (the rank's own rows, an ipc halo:
-    fluid cells, then boundary cells from start[split]); 0: a plain grid (staged halos,
-    images). Source j's x is srx[sst j], y sry[sst j + oy], z srz[sst j + oz], density
-    srho[sst j + orho]: separate arrays (sst 1, offsets 0) or the records of an ipc halo
-    (pos4 = x, y, z, p and vel4 = vx, vy, vz, rho: sst 4)."""
+    """The per-row sums of sphgraph.physics.shifting.shift_row for fluid row i: cells
+    from the float64 position (dpx..), distances from the run-type positions relative to
+    the rank's reference (drx_..). Sources as shift_row reads them: the rank's own rows
+    in one array per axis (kind-split grid, `split` = its fluid cells), a staged halo
+    likewise (plain grid, split 0), an ipc halo as the sender's records (pos4 = x, y,
+    z, p and vel4 = vx, vy, vz, rho: stride 4)."""
     i = cuda.grid(1)
     if i >= n:
         return
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
     zero = drx_[i] - drx_[i]
     gx = zero
     gy = zero
@@ -55,36 +48,11 @@ def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
     dv = zero
     cc = 0
     if dkind[i] == 0:
-        lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(dpx[i], dpy[i], dpz[i] if dim == 3 else 0.0, o0, o1, o2,
-                                                          inv_size, n0, n1, n2, a0, a1, a2, reach)
-        xa = drx_[i]
-        ya = dry_[i]
-        za = drz_[i] if dim == 3 else zero
-        nsets = 2 if split > 0 else 1
-        if not empty:
-            for c2 in range(lo2, hi2 + 1):
-                for c1 in range(lo1, hi1 + 1):
-                    row = (c2 * n1 + c1) * n0
-                    for s in range(nsets):
-                        off = s * split
-                        for j in range(start[off + row + lo0], start[off + row + hi0 + 1]):
-                            q = sst * j
-                            drx = xa - srx[q]
-                            dry = ya - sry[q + oy]
-                            drz = (za - srz[q + oz]) if dim == 3 else zero
-                            r2 = drx * drx + dry * dry + drz * drz
-                            if r2 > support2 or r2 < 1e-18:
-                                continue
-                            kb = skind[j]
-                            if kb != 0 and (mode == NOBOUND or (mode == NOFIXED and kb == FIXED)):
-                                cc = 1
-                                continue
-                            fx, fy, fz, fd = shift_pair(drx, dry, drz, r2, (mb if kb != 0 else mf) / srho[q + orho],
-                                                        prm, kernel_id)
-                            gx += fx
-                            gy += fy
-                            gz += fz
-                            dv += fd
+        gx, gy, gz, dv, cc = shift_row(dpx[i], dpy[i], dpz[i] if dim == 3 else 0.0,
+                                       drx_[i], dry_[i], drz_[i] if dim == 3 else zero,
+                                       spx, spy, spz, ps, po1, po2, sr, rs, ro, skind, start, split,
+                                       o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+                                       prm, dim, kernel_id, mode)
     gx_[i] = gx
     gy_[i] = gy
     if dim == 3:
@@ -175,7 +143,7 @@ class CudaShifting:
         A = dv.A()
         if part == "interior":
             g = dv.grid
-            src = (A["rx"], A["ry"], A["rz"], A["rho"], A["kind"], 1, 0, 0, 0)
+            src = (A["rx"], A["ry"], A["rz"], 1, 0, 0, A["rho"], 1, 0, A["kind"])
             start, split = A["start"], int(g["ncells"])
             origin, inv, dims, axes, reach = g["origin"], g["inv"], g["dims"], g["axes"], g["reach"]
         else:
@@ -184,7 +152,7 @@ class CudaShifting:
                 if halo.views is None:         # empty halo: contributes nothing
                     return
                 v = halo.views
-                src = (v["pos4"], v["pos4"], v["pos4"], v["vel4"], v["kind"], 4, 1, 2, 3)
+                src = (v["pos4"], v["pos4"], v["pos4"], 4, 1, 2, v["vel4"], 4, 3, v["kind"])
                 start, split = v["start"], int(halo.ncells)
                 g = dv.grid
                 origin, inv, dims, axes = halo.origin, 1.0 / halo.size, halo.dims, g["axes"]
@@ -193,7 +161,7 @@ class CudaShifting:
                 if halo is None or halo.cells is None:   # empty halo: contributes nothing
                     return
                 hd, gr = halo.press, halo.cells
-                src = (hd["rx"], hd["ry"], hd["rz"], hd["rho"], hd["kind"], 1, 0, 0, 0)
+                src = (hd["rx"], hd["ry"], hd["rz"], 1, 0, 0, hd["rho"], 1, 0, hd["kind"])
                 start, split = hd["start"], 0
                 origin, inv, dims, axes, reach = gr.origin, 1.0 / gr.size, gr.dims, gr.axes, gr.reach
         out = self._shift_bufs(dv, part)

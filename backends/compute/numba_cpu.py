@@ -227,7 +227,9 @@ class NumbaCPU(ComputeBackend):
         if b is None or b[1].shape[0] != p.n:
             b = (np.zeros((p.n, p.dim), state.dtype), np.zeros(p.n, state.dtype), np.zeros(p.n, np.int8))
         _threads(p.n, ROWS_PER_THREAD_FORCES)
-        S.shift_sums(p.pos, p.kind, *src, *grid.kernel_args(), state.prm, state.opt, mode, *b)
+        spos, srho, skind = src
+        S.shift_sums(p.pos, p.kind, np.ascontiguousarray(spos).reshape(-1), srho, skind, *grid.kernel_args(),
+                     state.prm, state.opt, mode, *b)
         bufs[part] = b
         state.extra.setdefault("shift_done", set()).add(part)
 

@@ -20,7 +20,13 @@ Plain @njit functions: the numba CPU kernels and the numba.cuda kernels share th
 """
 from numba import njit
 
+from sphgraph.cells import cell_window
+from sphgraph.config import P_MASS_B, P_MASS_F, P_SUPPORT2
+from sphgraph.particles import FIXED
+
 from .kernels import grad_factor
+
+NOBOUND, NOFIXED = 1, 2   # mode ids = index in sphgraph.config.SHIFTINGS (DualSPHysics TpShifting)
 
 
 @njit(inline="always", cache=True)
@@ -52,3 +58,57 @@ def clamp(x, m):
     if x < -m:
         return -m
     return x
+
+
+@njit(cache=True)   # a call, not inlined: numba cannot inline it into the prange loop
+def shift_row(cx, cy, cz, xa, ya, za, spx, spy, spz, ps, po1, po2, sr, rs, ro, skind, start, split,
+              o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel, mode):
+    """One fluid row's sums against one source set binned in a grid: (gx, gy, gz, div,
+    cancel). The row's cells come from (cx, cy, cz), its distances from (xa, ya, za) (the
+    same point; the GPU finds cells from float64 positions and measures distances in the
+    run's type). Source j is at spx[ps j], spy[ps j + po1], spz[ps j + po2] with density
+    sr[rs j + ro] and kind skind[j]: one flat (n, dim) array thrice on the CPU, one array
+    per axis or the halo records on the GPU. `split` > 0: a kind-split grid (fluid cells,
+    then boundary cells from start[split]).
+
+    A boundary neighbour cancels the shift in mode "nobound", a fixed one in "nofixed"
+    (DualSPHysics: noshift = boundp2 && (NoBound || (NoFixed && fixed))); "full" sums
+    boundary neighbours like fluid ones."""
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    zero = xa - xa
+    gx = zero
+    gy = zero
+    gz = zero
+    dv = zero
+    cc = 0
+    lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(cx, cy, cz, o0, o1, o2, inv_size, n0, n1, n2,
+                                                      a0, a1, a2, reach)
+    if empty:
+        return gx, gy, gz, dv, cc
+    nsets = 2 if split > 0 else 1
+    for c2 in range(lo2, hi2 + 1):
+        for c1 in range(lo1, hi1 + 1):
+            row = (c2 * n1 + c1) * n0
+            for s in range(nsets):
+                off = s * split
+                for j in range(start[off + row + lo0], start[off + row + hi0 + 1]):
+                    q = ps * j
+                    drx = xa - spx[q]
+                    dry = ya - spy[q + po1]
+                    drz = (za - spz[q + po2]) if dim == 3 else zero
+                    r2 = drx * drx + dry * dry + drz * drz
+                    if r2 > support2 or r2 < 1e-18:
+                        continue
+                    kb = skind[j]
+                    if kb != 0 and (mode == NOBOUND or (mode == NOFIXED and kb == FIXED)):
+                        cc = 1
+                        continue
+                    fx, fy, fz, fd = shift_pair(drx, dry, drz, r2, (mb if kb != 0 else mf) / sr[rs * j + ro],
+                                                prm, kernel)
+                    gx += fx
+                    gy += fy
+                    gz += fz
+                    dv += fd
+    return gx, gy, gz, dv, cc
