@@ -413,18 +413,67 @@ def test_stl_of_degenerate_triangles_is_refused(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------ SIGINT
-@pytest.mark.parametrize("after", [0.4, 0.8, 2.5])   # earlier: the interpreter's own start-up
-def test_sigint_at_any_moment_is_130_and_one_line(tmp_path, after):
-    """Start-up (imports), scene and compilation, stepping: exit 130 and one line."""
+def _sigint_run(tmp_path, cmd, after, blocked):
+    """Start `cmd` on a 5 s run, SIGINT it `after` seconds later: (exit code, stderr)."""
     d = copy.deepcopy(BASE)
     d.update(end_time=5.0, dp=0.02)
     s = scene_file(tmp_path, d)
-    p = subprocess.Popen([sys.executable, "-m", "sphgraph", "run", str(s), "--out", str(tmp_path / "o"), "--quiet"],
-                         stderr=subprocess.PIPE, text=True)
+    out = tmp_path / "o"
+    p = subprocess.Popen([*cmd, "run", str(s), "--out", str(out), "--quiet"], stderr=subprocess.PIPE,
+                         stdout=subprocess.DEVNULL, text=True,
+                         preexec_fn=(lambda: signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}))
+                         if blocked else None)
     time.sleep(after)
     p.send_signal(signal.SIGINT)
-    _, err = p.communicate(timeout=60)
+    _, err = p.communicate(timeout=120)
+    if (out / "frames").exists():
+        assert not [n for n in os.listdir(out / "frames") if n.endswith(".tmp")]
+    return p.returncode, err
+
+
+def _entries():
+    script = Path(sys.executable).with_name("sphgraph")   # the console script of this environment
+    return {"module": [sys.executable, "-m", "sphgraph"], "script": [str(script)] if script.exists() else None}
+
+
+@pytest.mark.parametrize("entry", ["module", "script"])
+@pytest.mark.parametrize("after", [0.02, 0.05, 0.1, 0.2, 0.4, 0.8, 1.2, 2.0])
+def test_sigint_from_the_start_is_130_and_one_line(tmp_path, entry, after):
+    """SIGINT 0.02-2 s after the start -- the package's first line, imports, scene and
+    compilation, stepping -- through both entries: exit 130 and one line, no traceback.
+
+    The child starts as a launcher would start it to keep the contract over the
+    interpreter's own start-up (site's .pth files, runpy, before any project code, where
+    no handler can exist yet): with SIGINT blocked across exec. The package's first line
+    installs the handler and unblocks SIGINT, so a signal sent before it is delivered
+    there, and every one after it arrives as usual."""
+    cmd = _entries()[entry]
+    if cmd is None:
+        pytest.skip("no console script next to this interpreter")
+    rc, err = _sigint_run(tmp_path, cmd, after, blocked=True)
     lines = err.strip().splitlines()
-    assert p.returncode == 130 and len(lines) == 1 and "interrupted" in lines[0], (p.returncode, err)
-    if (tmp_path / "o" / "frames").exists():
-        assert not [n for n in os.listdir(tmp_path / "o" / "frames") if n.endswith(".tmp")]
+    assert rc == 130 and len(lines) == 1 and "interrupted (SIGINT)" in lines[0] and "Traceback" not in err, \
+        (rc, err)
+
+
+@pytest.mark.parametrize("after", [0.4, 0.8, 2.5])   # earlier: the interpreter's own start-up
+def test_sigint_at_any_moment_is_130_and_one_line(tmp_path, after):
+    """Started plainly (SIGINT not blocked): once the interpreter runs the package, exit 130 and one line."""
+    rc, err = _sigint_run(tmp_path, [sys.executable, "-m", "sphgraph"], after, blocked=False)
+    lines = err.strip().splitlines()
+    assert rc == 130 and len(lines) == 1 and "interrupted" in lines[0], (rc, err)
+
+
+@pytest.mark.parametrize("orig,command", [
+    (["-m", "sphgraph"], True), (["-B", "-m", "sphgraph"], True), (["-Bm", "sphgraph"], True),
+    (["-msphgraph"], True), (["-X", "importtime", "-m", "sphgraph"], True), (["-W", "error", "-m", "sphgraph"], True),
+    (["--check-hash-based-pycs", "always", "-m", "sphgraph"], True),
+    (["-m", "sphgraph.ranges"], False), (["-m", "pytest"], False), (["-c", "import sphgraph"], False),
+])
+def test_the_command_is_recognised_at_the_package_first_line(monkeypatch, orig, command):
+    """Under python -m the package runs before __main__, with argv[0] == "-m": the
+    interpreter's arguments say whether the module is the command."""
+    import sphgraph
+    monkeypatch.setattr(sys, "argv", ["-m", "run"])
+    monkeypatch.setattr(sys, "orig_argv", [sys.executable, *orig, "run"])
+    assert sphgraph._is_command() is command
