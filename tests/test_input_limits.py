@@ -309,6 +309,21 @@ def test_toml_nested_5000_deep_and_binary_files(tmp_path, capsys):
     one_error(capsys, ["run", big, "--out", tmp_path / "o"], "at most 4194304 bytes")
 
 
+def test_a_checkpoint_damaged_inside_is_refused_in_one_line(tmp_path, capsys):
+    """Bytes flipped in a checkpoint's HDF5 metadata: h5py's RuntimeError (a failed metadata
+    checksum) was an internal error, exit 3; now the damaged checkpoint is skipped, exit 2."""
+    s, run = scene_file(tmp_path, BASE), tmp_path / "run"
+    rc, _ = cli(capsys, ["run", s, "--out", run, "--max-steps", "10", "--checkpoint-every", "10", "--quiet"])
+    ckpt = next((run / "checkpoints").glob("ckpt_*.h5"))
+    data = bytearray(ckpt.read_bytes())
+    for k in range(8):             # bytes at odd sixteenths: an attribute's metadata among them
+        data[len(data) * (2 * k + 1) // 16] ^= 0xFF
+    ckpt.write_bytes(bytes(data))
+    rc, lines = cli(capsys, ["run", s, "--restart", run, "--quiet"])
+    lines = [ln for ln in lines if not ln.startswith("sphgraph: warning:")]
+    assert rc == 2 and len(lines) == 1 and "expected a valid checkpoint" in lines[0], (rc, lines)
+
+
 # ------------------------------------------------------------------------------ output folder
 def test_output_folder_checked_before_any_work(tmp_path, capsys):
     s = scene_file(tmp_path, BASE)
