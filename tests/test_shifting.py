@@ -36,7 +36,8 @@ def test_scene_keys_are_validated():
 
     bad(r"s\.toml: physics\.shifting: expected one of \"none\", \"nobound\", \"nofixed\", \"full\"",
         shifting="nonfixed")
-    bad(r"physics\.shifting_coef: expected a number < 0", shifting="full", shifting_coef=2.0)
+    bad(r"physics\.shifting_coef: expected a number >= -100 and <= 0", shifting="full", shifting_coef=2.0)
+    bad(r"physics\.shifting_coef: expected a number < 0", shifting="full", shifting_coef=0.0)   # in range, not < 0
     bad(r"physics\.shifting_tfs: expected a number >= 0 and < 2", shifting="full", shifting_tfs=2.0)
     bad(r"physics\.shifting_tfs: expected a number >= 0", shifting="full", shifting_tfs=-1.0)
     with pytest.raises(InputError, match=r"s\.toml: shifting: expected a known key"):
