@@ -13,11 +13,18 @@ Cases are drawn from a seeded generator (the same seed, the same cases):
 - stl: a generated mesh (a closed cube, then: inf/nan vertices, degenerate or missing
   triangles, coordinates near float64's limit, a wrong binary count, ASCII junk, empty);
 - schedule: the production schedule mutated the same way, or binary;
-- flags: a random draw from every run flag's values, valid and hostile;
-- restart: a real run's folder damaged: a truncated checkpoint, one from another scene, one
-  of another format, a FIFO or a folder named like a checkpoint, no output.h5, a damaged
-  output.h5;
-- sigint: a subprocess interrupted at a random moment (start-up, set-up, stepping).
+- flags: a random draw from every run flag's values, valid and hostile, and its switches
+  (--no-rebalance, --overwrite, --no-invariants); one case in six runs `sphgraph bench`
+  with the drawn flags that bench takes and its own --steps/--warmup;
+- restart: a real run's folder damaged or not fitting the run: a truncated checkpoint, bytes
+  flipped inside every one, one from another scene (or of another dimension), one of another
+  format and version, a FIFO, a folder, a link to /dev/zero or a sparse file past the size
+  limit named like a checkpoint, the checkpoints folder a file, no or a damaged output.h5,
+  a missing folder; and flags that do not fit it (--precision, --dp, --out elsewhere, an
+  end time before the checkpoint's, a checkpoint of 2 mock ranks continued on 1);
+- sigint: a subprocess (python -m sphgraph or the console script) interrupted at a random
+  moment (start-up, set-up, stepping): half started with SIGINT blocked across exec, from
+  0.02 s on, the others plainly, from 0.5 s on (after the interpreter's own start-up).
 
 The contract checked for every case (DESIGN.md §5, issue 24 §3): exit 0, 1 or 2 (3 only as
 a communication error of the simulated faults, 130 for SIGINT), at most one stderr line
@@ -38,6 +45,7 @@ import math
 import os
 import random
 import resource
+import shutil
 import signal
 import subprocess
 import sys
@@ -175,7 +183,7 @@ def encode(rng: random.Random, text: str) -> bytes:
     if op == "utf16":
         return text.encode("utf-16")
     if op == "latin1":
-        return (text + '\n# café ±\n').encode("latin-1")
+        return (text + '\n# café ±\n').encode("latin-1", errors="replace")   # a key such as Ωmega: '?'
     if op == "bom":
         return b"\xef\xbb\xbf" + text.encode()
     if op == "nul":
@@ -249,10 +257,24 @@ FLAG_VALUES = {
     "--checkpoint-every": ["0", "-1", "1", "0.001s", "x", "nans", "1e-300s"],
     "--walltime": ["nan", "0", "1e9", "-5"],
     "--halo-transport": ["staged", "ipc", "x"],
-    "--rebalance-every": ["0", "1", "x"],
-    "--rebalance-threshold": ["nan", "0.03", "-1"],
-    "--out": ["", "{tmp}/file/o", "/proc/self/o", "{tmp}/" + "n" * 300, "{tmp}/o2"],
+    "--rebalance-every": ["0", "1", "x", "1" + "0" * 400, "1e3"],
+    "--rebalance-threshold": ["nan", "0.03", "-1", "inf", "1e300", "0"],
+    "--rebalance-policy": ["particles", "time", "memory", "bogus", ""],
+    "--max-particles-per-rank": ["0", "-5", "10", "100000", "1e6", "1" + "0" * 30, "x"],
+    "--out": ["", "{tmp}/file/o", "/proc/self/o", "{tmp}/" + "n" * 300, "{tmp}/o2", "/dev/null/o",
+              "{tmp}/scene.toml"],
 }
+# flags without a value, drawn with the valued ones
+SWITCHES = ["--no-rebalance", "--overwrite", "--no-invariants"]
+# `sphgraph bench`'s own flags (a case of kind flags runs bench instead of run one time in six)
+BENCH_VALUES = {
+    "--steps": ["0", "-1", "1", "2", "x", "1e3", "1" + "0" * 30],
+    "--warmup": ["0", "-1", "1", "x", "1" + "0" * 30],
+}
+# ways a --restart folder is damaged or does not fit the run (see _prepare_restart)
+RESTARTS = ("truncate", "other_scene", "other_format", "fifo", "folder", "no_master", "bad_master", "file",
+            "empty", "bitflip", "dev_zero_link", "sparse_huge", "ckpt_dir_file", "missing", "other_dim",
+            "precision", "other_ranks", "finished", "out_elsewhere", "dp_override")
 
 
 def case(seed: int, index: int) -> dict:
@@ -285,19 +307,44 @@ def case(seed: int, index: int) -> dict:
         files["file"] = b"x"
         for flag in rng.sample(sorted(FLAG_VALUES), rng.randint(1, 4)):
             argv += [flag, rng.choice(FLAG_VALUES[flag])]
+        argv += [f for f in SWITCHES if rng.random() < 0.15]
+        if rng.random() < 1 / 6:   # bench: its own step counts, and no --out/--overwrite/--checkpoint-every
+            argv = _bench_argv(rng, argv)
     elif kind == "restart":
         base = copy.deepcopy(BASES["box2d"])
         files["scene.toml"] = render(sections(base)).encode()
-        restart = rng.choice(["truncate", "other_scene", "other_format", "fifo", "folder", "no_master",
-                              "bad_master", "file", "empty"])
+        restart = rng.choice(RESTARTS)
         if restart == "other_scene":
             base["physics"]["visc_alpha"] = 0.05
             files["other.toml"] = render(sections(base)).encode()
+        elif restart == "other_dim":
+            files["other.toml"] = render(sections(copy.deepcopy(BASES["shapes3d"]))).encode()
     else:   # sigint
         base["end_time"] = 2.0
         files["scene.toml"] = render(sections(base)).encode()
+    delay = rng.uniform(0.02, 4.0)
+    # sigint: half the cases start the command with SIGINT blocked across exec, as a launcher
+    # keeping the contract over the interpreter's own start-up does (site's .pth files, runpy:
+    # no project code runs there), the others plainly, once that start-up is over (0.5 s)
+    blocked = rng.random() < 0.5
     return {"index": index, "kind": kind, "files": files, "argv": argv, "restart": restart,
-            "delay": rng.uniform(0.1, 4.0)}
+            "delay": delay if blocked else 0.5 + (delay - 0.02) * 3.5 / 3.98, "blocked": blocked,
+            "entry": rng.choice(["module", "script"])}
+
+
+def _bench_argv(rng: random.Random, argv: list[str]) -> list[str]:
+    """The drawn run flags that bench takes too, as a `bench` case's extra flags (marked by a
+    leading "bench"), with bench's own step counts."""
+    run_only = {"--out", "--checkpoint-every", "--walltime", "--overwrite", "--no-invariants"}
+    out, i = ["bench"], 0
+    while i < len(argv):
+        takes = argv[i] not in SWITCHES
+        if argv[i] not in run_only:
+            out += argv[i:i + 1 + takes]
+        i += 1 + takes
+    for flag in rng.sample(sorted(BENCH_VALUES), rng.randint(1, 2)):
+        out += [flag, rng.choice(BENCH_VALUES[flag])]
+    return out
 
 
 def _prepare_restart(c: dict, tmp: str) -> list[str]:
@@ -305,9 +352,10 @@ def _prepare_restart(c: dict, tmp: str) -> list[str]:
     from sphgraph import checkpoint as ck
     from sphgraph.cli import main
     run = os.path.join(tmp, "run")
+    ranks = ["--comm", "mock", "--ranks", "2"] if c["restart"] == "other_ranks" else []
     with contextlib.redirect_stderr(io.StringIO()):
         rc = main(["run", os.path.join(tmp, "scene.toml"), "--out", run, "--max-steps", "40",
-                   "--checkpoint-every", "20", "--quiet"])
+                   "--checkpoint-every", "20", "--quiet", *ranks])
     assert rc == 0, "the restart case's base run failed"
     cks = ck.list_checkpoints(run)
     newest = cks[-1][1]
@@ -343,6 +391,46 @@ def _prepare_restart(c: dict, tmp: str) -> list[str]:
     elif how == "empty":
         for _, p in cks:
             os.remove(p)
+    elif how == "bitflip":         # every checkpoint damaged inside (digest or HDF5 structure)
+        rng = random.Random(c["index"])
+        for _, p in cks:
+            with open(p, "r+b") as f:
+                size = os.path.getsize(p)
+                for at in sorted(rng.randrange(size) for _ in range(rng.choice([1, 4, 16]))):
+                    f.seek(at)
+                    b = f.read(1)
+                    f.seek(-1, os.SEEK_CUR)
+                    f.write(bytes([(b[0] if b else 0) ^ 0xFF]))
+    elif how == "dev_zero_link":   # the newest a link to a device, the others gone
+        for _, p in cks:
+            os.remove(p)
+        os.symlink("/dev/zero", newest)
+    elif how == "sparse_huge":     # the newest grown (sparsely) past the checkpoint size limit
+        from sphgraph.files import CHECKPOINT_LIMIT
+        for _, p in cks[:-1]:
+            os.remove(p)
+        try:
+            with open(newest, "r+b") as f:
+                f.truncate(CHECKPOINT_LIMIT + 1)
+        except OSError:           # a filesystem without files that large: the same as truncate
+            with open(newest, "r+b") as f:
+                f.truncate(os.path.getsize(newest) // 2)
+    elif how == "ckpt_dir_file":   # the checkpoints folder a file
+        shutil.rmtree(ck.ckpt_dir(run))
+        with open(ck.ckpt_dir(run), "wb") as f:
+            f.write(b"x")
+    elif how == "missing":
+        return ["run", scene, "--restart", os.path.join(tmp, "nowhere"), "--quiet"]
+    elif how == "other_dim":
+        scene = os.path.join(tmp, "other.toml")
+    elif how == "precision":
+        return ["run", scene, "--restart", run, "--quiet", "--max-steps", "45", "--precision", "float32"]
+    elif how == "finished":        # nothing left to run: end_time at or before the checkpoint's time
+        return ["run", scene, "--restart", run, "--quiet", "--end-time", "1e-6"]
+    elif how == "out_elsewhere":
+        return ["run", scene, "--restart", run, "--quiet", "--max-steps", "45", "--out", os.path.join(tmp, "o")]
+    elif how == "dp_override":     # a spacing other than the checkpoint's
+        return ["run", scene, "--restart", run, "--quiet", "--max-steps", "45", "--dp", "0.04"]
     return ["run", scene, "--restart", run, "--quiet", "--max-steps", "45"]
 
 
@@ -382,22 +470,31 @@ def run_case(c: dict) -> dict:
                 f.write(data)
         t0 = time.perf_counter()
         if c["kind"] == "sigint":
-            p = subprocess.Popen([sys.executable, "-m", "sphgraph", "run", os.path.join(tmp, "scene.toml"),
-                                  "--out", os.path.join(tmp, "o"), "--quiet"], stderr=subprocess.PIPE, text=True)
+            script = os.path.join(os.path.dirname(sys.executable), "sphgraph")
+            entry = [script] if c["entry"] == "script" and os.path.exists(script) else [sys.executable, "-m",
+                                                                                          "sphgraph"]
+            block = (lambda: signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})) if c["blocked"] else None
+            p = subprocess.Popen([*entry, "run", os.path.join(tmp, "scene.toml"), "--out", os.path.join(tmp, "o"),
+                                  "--quiet"], stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                                 preexec_fn=block)
             time.sleep(c["delay"])
             p.send_signal(signal.SIGINT)
             _, err = p.communicate(timeout=CASE_SECONDS)
             rc = p.returncode
         else:
-            argv = (_prepare_restart(c, tmp) if c["kind"] == "restart" else
-                    ["run", os.path.join(tmp, "scene.toml"), "--out", os.path.join(tmp, "o"), "--quiet",
-                     "--max-steps", "2"])
-            argv += [a.replace("{tmp}", tmp) for a in c["argv"]]
+            extra = [a.replace("{tmp}", tmp) for a in c["argv"]]
+            if extra[:1] == ["bench"]:
+                argv = ["bench", os.path.join(tmp, "scene.toml")] + extra[1:]
+            elif c["kind"] == "restart":
+                argv = _prepare_restart(c, tmp) + extra
+            else:
+                argv = ["run", os.path.join(tmp, "scene.toml"), "--out", os.path.join(tmp, "o"), "--quiet",
+                        "--max-steps", "2"] + extra
             errpath = os.path.join(tmp, "stderr.txt")
             old = signal.signal(signal.SIGALRM, _alarm)
             signal.alarm(CASE_SECONDS)
             try:
-                with _captured_stderr(errpath):
+                with _captured_stderr(errpath), contextlib.redirect_stdout(io.StringIO()):   # bench's JSON
                     rc = main(argv)
             except _Timeout:
                 rc = "timeout"

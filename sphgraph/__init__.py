@@ -16,10 +16,47 @@ def _sigint_at_start(signum, frame):
     _os._exit(130)
 
 
-# the console script; python -m sphgraph sets it in __main__ (argv[0] is "-m" while importing)
-COMMAND = _os.path.basename(_sys.argv[0]) == "sphgraph"
-if COMMAND:   # a library import keeps Python's KeyboardInterrupt
+def _is_command() -> bool:
+    """Whether this process is the command: the console script, or ``python -m sphgraph``.
+
+    Under ``-m`` the package is imported before ``__main__`` with ``sys.argv[0] == "-m"``,
+    so the interpreter's own arguments (``sys.orig_argv``) say which module runs: the
+    handler goes in here, at the first line of project code either way, not after the
+    package's imports."""
+    if _os.path.basename(_sys.argv[0]) == "sphgraph":
+        return True
+    if _sys.argv[:1] != ["-m"]:
+        return False
+    args = list(getattr(_sys, "orig_argv", ()))[1:]
+    while args:
+        a = args.pop(0)
+        if a == "--" or not a.startswith("-"):
+            return False                      # a script (or stdin) runs, not a module
+        if a.startswith("--"):                # --check-hash-based-pycs MODE
+            if a == "--check-hash-based-pycs" and args:
+                args.pop(0)
+            continue
+        for j, ch in enumerate(a[1:], 1):     # short options, combined as in -Bm
+            if ch == "m":
+                return (a[j + 1:] or (args[0] if args else "")) == "sphgraph"
+            if ch in "cXW":                   # options with an argument (-c ends the options)
+                if ch == "c":
+                    return False
+                if not a[j + 1:] and args:
+                    args.pop(0)
+                break
+    return False
+
+
+# the command (console script or python -m sphgraph); a library import keeps Python's KeyboardInterrupt
+COMMAND = _is_command()
+if COMMAND:
     _signal.signal(_signal.SIGINT, _sigint_at_start)
+    # a launcher may block SIGINT across exec, over the interpreter's own start-up (site's
+    # .pth files, runpy: no project code runs there, and Python prints a traceback for a
+    # SIGINT in it); a SIGINT held pending meanwhile is delivered to the handler here
+    if hasattr(_signal, "pthread_sigmask"):
+        _signal.pthread_sigmask(_signal.SIG_UNBLOCK, {_signal.SIGINT})
 
 from .errors import InputError, NumericalError  # noqa: E402
 

@@ -1,5 +1,7 @@
 import sphgraph
 
+# sphgraph/__init__.py installed the start-up SIGINT handler when it saw python -m sphgraph;
+# runpy.run_module("sphgraph") from code reaches here without it
 sphgraph.COMMAND = True
 import signal  # noqa: E402
 

@@ -24,7 +24,6 @@ its neighbours' old slabs, so applying it only moves rows between neighbours
 """
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,37 +31,50 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
+from .ranges import expected
 
 POLICIES = ("particles", "time", "memory")
 CAP_SLACK = 0.01     # memory: plan loads this fraction under the caps (see Balancer._within_caps)
 BASES = ("particles", "time")
 
 
-def _int(v):
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _num(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-# key -> (valid?, expected form): the scene's [balance] table, the schedule's [rebalance]
-# table (its every/threshold/policy) and the command-line flags share these
+# key -> (valid?, expected form) of the keys that hold no number; the numbers' forms and
+# ranges are rows ``balance.KEY`` of sphgraph.ranges. The scene's [balance] table, the
+# schedule's [rebalance] table (its every/threshold/policy) and the command-line flags share these
 KEYS = {
     "enabled": (lambda v: isinstance(v, bool), "true or false"),
-    "every": (lambda v: _int(v) and v >= 1, "an integer >= 1"),
-    "threshold": (lambda v: _num(v) and v >= 0, "a number >= 0"),
+    "every": None,
+    "threshold": None,
     "policy": (lambda v: isinstance(v, str) and v in POLICIES, f"one of {', '.join(POLICIES)}"),
     "base": (lambda v: isinstance(v, str) and v in BASES, f"one of {', '.join(BASES)}"),
-    "max_particles_per_rank": (lambda v: _int(v) and v >= 1, "an integer >= 1"),
-    "smoothing": (lambda v: _num(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "max_particles_per_rank": None,
+    "smoothing": None,
 }
+# numbers: key -> keyword arguments of sphgraph.ranges.expected
+_NUMBERS = {"every": {"integer": True}, "threshold": {"ge": 0.0},
+            "max_particles_per_rank": {"integer": True}, "smoothing": {"gt": 0.0}}
 
 
 def expected_form(key: str, value) -> str | None:
     """None when `value` is valid for `key`, else the expected form (for one-line errors)."""
+    if key in _NUMBERS:
+        return expected(f"balance.{key}", value, **_NUMBERS[key])
     ok, form = KEYS[key]
     return None if ok(value) else form
+
+
+def check_layer(layer, where: str) -> dict:
+    """One layer of the balance settings (``where``: ``FILE: balance.`` and the like): a table
+    of known keys, each valid, before any arithmetic on them."""
+    if not isinstance(layer, dict):
+        raise InputError(f"{where.rstrip('.=')}: expected a table of {', '.join(KEYS)}, got {layer!r}")
+    for k, v in layer.items():
+        if k not in KEYS:
+            raise InputError(f"{where}{k}: unknown key: expected one of {', '.join(KEYS)}")
+        form = expected_form(k, v)
+        if form is not None:
+            raise InputError(f"{where}{k}: expected {form}, got {v!r}")
+    return layer
 
 
 @dataclass
@@ -90,14 +102,7 @@ class BalanceConfig:
         for layer, where in layers:
             if layer is None:
                 continue
-            if not isinstance(layer, dict):
-                raise InputError(f"{where.rstrip('.=')}: expected a table of {', '.join(KEYS)}, got {layer!r}")
-            for k, v in layer.items():
-                if k not in KEYS:
-                    raise InputError(f"{where}{k}: unknown key: expected one of {', '.join(KEYS)}")
-                form = expected_form(k, v)
-                if form is not None:
-                    raise InputError(f"{where}{k}: expected {form}, got {v!r}")
+            check_layer(layer, where)
             merged.update(layer)
         return cls(**merged)
 

@@ -185,6 +185,12 @@ class Checkpoint:
         return float(self.meta["time"])
 
 
+# what h5py raises for a damaged file: HDF5's errors by class (a failed metadata checksum
+# is a RuntimeError), and a size field that asks for more than memory holds
+_UNREADABLE = (OSError, KeyError, ValueError, TypeError, AttributeError, RuntimeError, IndexError,
+               OverflowError, MemoryError)
+
+
 def load(path) -> Checkpoint:
     """Read and verify one checkpoint; `InputError` when unreadable or the checksum fails."""
     path = os.fspath(path)
@@ -198,7 +204,7 @@ def load(path) -> Checkpoint:
             cuts = f["cuts"][()] if "cuts" in f else None
             exclusions = ({name: f[f"exclusions/{name}"][()] for name in EXCLUSION_FIELDS}
                           if "exclusions" in f else None)
-    except (OSError, KeyError, ValueError, TypeError, AttributeError) as e:
+    except _UNREADABLE as e:
         raise InputError(f"{path}: checkpoint: expected a complete sphgraph checkpoint, "
                          f"got an unreadable file ({type(e).__name__}: {e})") from None
     if meta.get("sha256") != _digest(meta, raw, cuts, exclusions):

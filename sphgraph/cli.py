@@ -480,12 +480,17 @@ def _sigint_exit(signum, frame):
     prints it and swallows it, and the run goes on. Every finished file is complete
     (writes are atomic), so leaving at once is as safe as a kill."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    files = sys.modules.get("sphgraph.files")   # no import here: the main thread may hold the import lock
-    if files is not None:
-        files.remove_in_flight()
-    if _root():
-        os.write(2, (_INTERRUPTED + "\n").encode())
-    os._exit(130)
+    try:
+        # no import here: the main thread may hold the import lock; and the module may be
+        # half imported (the signal came during its import), without the function yet and
+        # with nothing written through it
+        remove = getattr(sys.modules.get("sphgraph.files"), "remove_in_flight", None)
+        if remove is not None:
+            remove()
+        if _root():
+            os.write(2, (_INTERRUPTED + "\n").encode())
+    finally:
+        os._exit(130)
 
 
 def _root() -> bool:

@@ -36,9 +36,10 @@ import numpy as np
 
 from .errors import InputError
 from .particles import MOVING
+from .ranges import CHOICES, describe, expected
 
 TYPES = ("rectilinear", "rotation", "piston", "flap", "gate")
-_KEYS = {
+KEYS = {
     "rectilinear": ("body", "type", "times", "velocity"),
     "rotation": ("body", "type", "times", "omega", "center", "axis"),
     "piston": ("body", "type", "height", "period", "depth", "direction", "ramp", "phase", "start", "order"),
@@ -62,7 +63,7 @@ def validate(c, raw, dim: int, names, source_depth=None) -> list:
     for i, e in enumerate(raw):
         key = f"motion[{i}]"
         t = c.choice(f"{key}.type", c.require(key, e, "type"), TYPES)
-        c.table(key, e, _KEYS[t])
+        c.table(key, e, KEYS[t])
         body = c.require(key, e, "body")
         if not isinstance(body, str) or body not in names:
             raise c.error(f"{key}.body", "the name of a [[boundary]] entry (one of: "
@@ -73,11 +74,12 @@ def validate(c, raw, dim: int, names, source_depth=None) -> list:
         n = {"body": body, "type": t}
         if t in ("rectilinear", "rotation"):
             times = e.get("times")
+            # each time a number in range (sphgraph.ranges) before the comparisons of the order
             if (not isinstance(times, list) or not times
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-                               for x in times)
+                    or not all(expected(f"{key}.times", x) is None for x in times)
                     or any(b < a for a, b in zip(times, times[1:]))):
-                raise c.error(f"{key}.times", "a non-empty list of non-decreasing times [s]", times)
+                raise c.error(f"{key}.times", "a non-empty list of non-decreasing times, each "
+                              + describe(f"{key}.times")[2:], times)
             n["times"] = [float(x) for x in times]
             if t == "rectilinear":
                 vel = e.get("velocity")
@@ -110,7 +112,7 @@ def validate(c, raw, dim: int, names, source_depth=None) -> list:
             n["start"] = c.number(f"{key}.start", e.get("start", 0.0), ge=0)
             if t == "piston":
                 o = e.get("order", 1)
-                if isinstance(o, bool) or o not in (1, 2):
+                if isinstance(o, bool) or not isinstance(o, int) or o not in CHOICES["motion[].order"]:
                     raise c.error(f"{key}.order", "1 (first-order wavemaker theory) or 2 (Madsen 1971)", o)
                 n["order"] = int(o)
             if t == "flap" and "hinge" in e:

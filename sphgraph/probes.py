@@ -35,7 +35,6 @@ import math
 import numpy as np
 
 from .config import K_WENDLAND, KERNELS, P_AW, P_BW
-from .errors import InputError
 
 __all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor"]
 
@@ -62,71 +61,65 @@ def grad_factor(r, h, bw, kernel="wendland"):
 
 
 # --------------------------------------------------------------------------- scene tables
-def _err(source, key, form, value):
-    return InputError(f"{source}: {key}: expected {form}, got {value!r}")
+TABLE_KEYS = {"probes": ("interval", "points", "heights"), "forces": ("interval", "bodies")}
+ITEM_KEYS = {"probes.points": ("position",), "probes.heights": ("position",), "forces.bodies": ("min", "max")}
 
 
-def _real(x) -> bool:
-    """A finite TOML number (int or float, not bool): `nan`/`inf` pass `x < 0` checks, so test it."""
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def _vec(source, key, v, n):
-    if not isinstance(v, list) or len(v) != n or not all(_real(x) for x in v):
-        raise _err(source, key, f"a list of {n} finite numbers", v)
-    return np.array(v, float)
-
-
-def _named(source, key, items, fields):
+def _named(c, key, items, fields):
     if not isinstance(items, list) or not all(isinstance(e, dict) for e in items):
-        raise _err(source, key, "a list of tables", items)
+        raise c.error(key, "a list of tables", items)
     names = set()
     for i, e in enumerate(items):
         extra = set(e) - set(fields) - {"name"}
         if extra:
-            raise _err(source, f"{key}[{i}]", f"keys name, {', '.join(fields)}", sorted(extra))
+            raise c.error(f"{key}[{i}]", f"keys name, {', '.join(fields)}", sorted(extra))
         name = e.get("name", f"{key.split('.')[-1]}{i}")
         if not isinstance(name, str) or not name or "/" in name or name in ("time", "step", "attrs") or name in names:
-            raise _err(source, f"{key}[{i}].name", "a unique name without '/'", name)
+            raise c.error(f"{key}[{i}].name", "a unique name without '/'", name)
         names.add(name)
     return items
 
 
-def parse(scene) -> dict:
-    """Validated [probes] / [forces] of a scene: {'interval', 'points', 'heights', 'bodies',
-    'force_interval'}; empty lists when the scene asks for nothing."""
-    src = scene.source
-    dim = scene.dim
+def check(c, extra: dict, dim: int) -> dict:
+    """The [probes] / [forces] tables of a scene (``extra``: the raw tables), checked with the
+    scene's checker ``c`` -- every number a number in its range (sphgraph.ranges) -- into
+    {'interval', 'points', 'heights', 'bodies', 'force_interval'}; empty lists when the scene
+    asks for nothing."""
     out = {"interval": 0.0, "points": [], "heights": [], "bodies": [], "force_interval": 0.0}
-    for table, allowed in (("probes", ("interval", "points", "heights")), ("forces", ("interval", "bodies"))):
-        t = scene.extra.get(table)
+    for table, allowed in TABLE_KEYS.items():
+        t = extra.get(table)
         if t is None:
             continue
         if not isinstance(t, dict):
-            raise _err(src, table, "a table", t)
+            raise c.error(table, "a table", t)
         bad = set(t) - set(allowed)
         if bad:
-            raise _err(src, table, f"keys {', '.join(allowed)}", sorted(bad))
-        iv = t.get("interval", 0.0)
-        if not _real(iv) or iv < 0:
-            raise _err(src, f"{table}.interval", "a finite number >= 0 [s] (0 = every step)", iv)
+            raise c.error(table, f"keys {', '.join(allowed)}", sorted(bad))
+        iv = c.number(f"{table}.interval", t.get("interval", 0.0), ge=0)
         if table == "probes":
-            out["interval"] = float(iv)
-            for i, e in enumerate(_named(src, "probes.points", t.get("points", []), ("position",))):
+            out["interval"] = iv
+            for i, e in enumerate(_named(c, "probes.points", t.get("points", []), ITEM_KEYS["probes.points"])):
                 out["points"].append((e.get("name", f"points{i}"),
-                                      _vec(src, f"probes.points[{i}].position", e.get("position"), dim)))
-            for i, e in enumerate(_named(src, "probes.heights", t.get("heights", []), ("position",))):
+                                      c.vector(f"probes.points[{i}].position", e.get("position"), dim)))
+            for i, e in enumerate(_named(c, "probes.heights", t.get("heights", []), ITEM_KEYS["probes.heights"])):
                 out["heights"].append((e.get("name", f"heights{i}"),
-                                       _vec(src, f"probes.heights[{i}].position", e.get("position"), dim - 1)))
+                                       c.vector(f"probes.heights[{i}].position", e.get("position"), dim - 1)))
         else:
-            out["force_interval"] = float(iv)
-            for i, e in enumerate(_named(src, "forces.bodies", t.get("bodies", []), ("min", "max"))):
-                lo = _vec(src, f"forces.bodies[{i}].min", e.get("min"), dim)
-                hi = _vec(src, f"forces.bodies[{i}].max", e.get("max"), dim)
+            out["force_interval"] = iv
+            for i, e in enumerate(_named(c, "forces.bodies", t.get("bodies", []), ITEM_KEYS["forces.bodies"])):
+                lo = c.vector(f"forces.bodies[{i}].min", e.get("min"), dim)
+                hi = c.vector(f"forces.bodies[{i}].max", e.get("max"), dim)
                 if not np.all(hi >= lo):
-                    raise _err(src, f"forces.bodies[{i}].max", "every coordinate >= min", e.get("max"))
+                    raise c.error(f"forces.bodies[{i}].max", "every coordinate >= min", e.get("max"))
                 out["bodies"].append((e.get("name", f"bodies{i}"), lo, hi))
     return out
+
+
+def parse(scene) -> dict:
+    """Validated [probes] / [forces] of a scene (:func:`check`; the scene checked them when
+    it was read, so this finds nothing new)."""
+    from .scene_schema import _Checker
+    return check(_Checker(scene.source), scene.extra, scene.dim)
 
 
 # --------------------------------------------------------------------------- sampling

@@ -55,14 +55,13 @@ RANGES = {
     "fluid[].min": _C, "fluid[].max": _C,
     "boundary[].min": _C, "boundary[].max": _C,
     "boundary[].layers": (1, 100, "layers", "1-100 particle layers"),
-    # shapes (sphgraph.shapes): cylinders, slopes, STL meshes, in either group
+    # shapes (sphgraph.shapes): cylinders and STL meshes in either group, slopes as boundaries
     "fluid[].center": _C, "boundary[].center": _C,
     "fluid[].radius": _LEN, "boundary[].radius": _LEN,
     "fluid[].length": _LEN, "boundary[].length": _LEN,
-    "fluid[].width": _LEN, "boundary[].width": _LEN,
+    "boundary[].width": _LEN,
     "fluid[].axis": (-1e6, 1e6, "", "a direction vector"), "boundary[].axis": (-1e6, 1e6, "", "a direction vector"),
-    "fluid[].start": _C, "boundary[].start": _C, "fluid[].end": _C, "boundary[].end": _C,
-    "fluid[].angle": (-90.0, 90.0, "degrees", "a slope's angle"),
+    "boundary[].start": _C, "boundary[].end": _C,
     "boundary[].angle": (-90.0, 90.0, "degrees", "a slope's angle"),
     "fluid[].scale": (1e-9, 1e9, "", "an STL mesh's scale factor"),
     "boundary[].scale": (1e-9, 1e9, "", "an STL mesh's scale factor"),
@@ -80,9 +79,31 @@ RANGES = {
     "motion[].start": (0.0, 1e6, "s", "a start time up to 11.6 days"),
     "motion[].speed": (1e-9, 1e4, "m/s", "a gate's speed below 10 km/s"),
     "motion[].lift": _LEN,
+    "motion[].times": (0.0, 1e6, "s", "times of a motion table up to 11.6 days"),
     "damping[].start": _C, "damping[].end": _C,
     "damping[].overlimit": (0.0, 1e30, "m", "distance beyond end at full damping; 1e30 = no limit"),
     "damping[].redumax": (1e-9, 1e6, "", "the largest velocity reduction"),
+    # load balancing (sphgraph.balance): the scene's [balance], the schedule's [rebalance]
+    # and the --rebalance-* flags share these rows
+    "balance.every": (1, 10**9, "steps", "a balance check every 1 to 10^9 steps"),
+    "balance.threshold": (0.0, 1e4, "", "the drop of the imbalance that applies new cuts; 0.03 = 3 points"),
+    "balance.max_particles_per_rank": (1, 2 ** 53, "particles", "a rank's capacity; a count float64 holds exactly"),
+    "balance.smoothing": (0.0, 1.0, "", "the newest window's weight in the average of the ranks' speeds, above 0"),
+    # probes and body forces (sphgraph.probes)
+    "probes.interval": (0.0, 1e6, "s", "time between samples up to 11.6 days; 0 = every step"),
+    "probes.points[].position": _C,
+    "probes.heights[].position": _C,
+    "forces.interval": (0.0, 1e6, "s", "time between samples up to 11.6 days; 0 = every step"),
+    "forces.bodies[].min": _C, "forces.bodies[].max": _C,
+}
+
+# integers that name one of a few options rather than measure anything: checked as exact
+# integers in the set (``dim = 2.0`` and ``true`` are refused), listed here so that the
+# schema's every key is either a range, one of these, or no number at all
+CHOICES = {
+    "format": (1,),
+    "dim": (2, 3),
+    "motion[].order": (1, 2),
 }
 
 # command-line flags (sphgraph.cli): flag -> (lowest, highest, unit, what it stands for)
@@ -99,6 +120,9 @@ FLAG_RANGES = {
     "--rank-speed": (1e-6, 1e6, "", "relative rank throughput"),
     "--duplicate": (0.0, 1.0, "", "a probability per message"),
     "--loss": (0.0, 1.0, "", "a probability per message"),
+    "--rebalance-every": RANGES["balance.every"],
+    "--rebalance-threshold": RANGES["balance.threshold"],
+    "--max-particles-per-rank": RANGES["balance.max_particles_per_rank"],
 }
 
 _INDEX = re.compile(r"\[\d+\]")
@@ -153,6 +177,24 @@ def describe(key: str, gt=None, ge=None, le=None) -> str:
     conds += [f">= {_fmt(max(lo, ge if ge is not None else lo))}"]
     conds += [f"<= {_fmt(min(hi, le if le is not None else hi))}"]
     return f"a number {' and '.join(conds)}{f' [{unit}]' if unit else ''} ({why})"
+
+
+def expected(key: str, v, integer: bool = False, gt=None, ge=None, le=None) -> str | None:
+    """None when ``v`` is a number of ``key``'s type (an integer with ``integer``), finite,
+    within the caller's bounds and inside the key's range; else the expected form, for the
+    one-line error ``FILE: key: expected FORM, got VALUE``. Nothing but comparisons happens
+    to ``v`` before it passes (a 400-digit integer is compared exactly, never converted)."""
+    form = describe(key, gt, ge, le)
+    if integer:
+        ok = isinstance(v, numbers.Integral) and not isinstance(v, bool) and type(v).__name__ != "bool_"
+        form = form.replace("a number", "an integer", 1)
+    else:
+        ok = finite(v)
+    if ok:
+        x = v if integer else float(v)
+        ok = ((gt is None or x > gt) and (ge is None or x >= ge) and (le is None or x <= le)
+              and in_range(key, x))
+    return None if ok else form
 
 
 def in_range(key: str, v) -> bool:

@@ -22,16 +22,18 @@ from . import shapes
 from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS,
                      SHIFTINGS, PhysicsConfig)
 from .errors import InputError
-from .ranges import describe, finite, in_range, is_real
+from .ranges import CHOICES, describe, expected, finite, in_range, is_real
 
 FORMAT_VERSION = 1
 DEFAULT_MAX_PARTICLES = 200_000_000
-# Tables that later features read (load balancing, probes, force output, moving
-# bodies). Accepted and kept raw in Scene.extra, unvalidated, until those
-# features validate them; extend this tuple to reserve another table name.
+# Tables of features (load balancing, probes, force output, moving bodies, damping
+# zones): validated here by the features' own checks, every number through the
+# checker and its range, and kept in Scene.extra for the features to read.
 EXTRA_TABLES = ("balance", "probes", "forces", "motion", "damping")
 TOP_KEYS = ("format", "name", "dim", "dp", "end_time", "output_interval", "domain",
             "physics", "decomposition", "initial", "limits", "fluid", "boundary") + EXTRA_TABLES
+SECTION_KEYS = {"domain": ("min", "max", "origin", "periodic", "exclude_outside", "exclude_max_share"),
+                "decomposition": ("axis",), "initial": ("hydrostatic", "jitter"), "limits": ("max_particles",)}
 AXES = ("x", "y", "z")
 NAME_LENGTH = 128
 FLUID_TYPES = ("box",) + shapes.FLUID_SHAPES
@@ -83,16 +85,14 @@ class _Checker:
     def number(self, key, v, gt=None, ge=None, le=None) -> float:
         """A real, finite number within ``gt``/``ge``/``le`` and the key's physical range
         (:mod:`sphgraph.ranges`), checked before any arithmetic on it."""
-        form = describe(key, gt, ge, le)
-        if (not finite(v) or (gt is not None and not v > gt) or (ge is not None and not v >= ge)
-                or (le is not None and not v <= le) or not in_range(key, float(v))):
+        form = expected(key, v, gt=gt, ge=ge, le=le)
+        if form is not None:
             raise self.error(key, form, v)
         return float(v)
 
     def integer(self, key, v, ge=None) -> int:
-        form = describe(key, ge=ge).replace("a number", "an integer", 1)
-        if (not isinstance(v, (int, np.integer)) or isinstance(v, bool) or (ge is not None and v < ge)
-                or not in_range(key, v)):
+        form = expected(key, v, integer=True, ge=ge)
+        if form is not None:
             raise self.error(key, form, v)
         return int(v)
 
@@ -155,7 +155,7 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
             or not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", name)):
         raise c.error("name", f"a name of at most {NAME_LENGTH} letters, digits, '.', '_' or '-'", name)
     dim = c.require("", d, "dim")
-    if not isinstance(dim, (int, np.integer)) or isinstance(dim, bool) or dim not in (2, 3):
+    if not isinstance(dim, (int, np.integer)) or isinstance(dim, bool) or dim not in CHOICES["dim"]:
         raise c.error("dim", "2 or 3", dim)
     dim = int(dim)
     dp = c.number("dp", c.require("", d, "dp"), gt=0)
@@ -165,8 +165,7 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
         raise c.error("output_interval", f"a number >= end_time * 1e-8 = {end_time * 1e-8:.6g} "
                       "(at most 10^8 frames)", out_dt)
 
-    dom = c.table("domain", c.require("", d, "domain"),
-                  ("min", "max", "origin", "periodic", "exclude_outside", "exclude_max_share"))
+    dom = c.table("domain", c.require("", d, "domain"), SECTION_KEYS["domain"])
     dmin = c.vector("domain.min", c.require("domain", dom, "min"), dim)
     dmax = c.vector("domain.max", c.require("domain", dom, "max"), dim)
     if not np.all(dmax > dmin):
@@ -187,12 +186,12 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
     share = c.number("domain.exclude_max_share", dom.get("exclude_max_share", 1e-3), ge=0, le=1)
 
     physics = _physics(c, d.get("physics", {}), dim)
-    dec = c.table("decomposition", d.get("decomposition", {}), ("axis",))
+    dec = c.table("decomposition", d.get("decomposition", {}), SECTION_KEYS["decomposition"])
     axis = c.choice("decomposition.axis", dec.get("axis", "auto"), AXES[:dim] + ("auto",))
-    ini = c.table("initial", d.get("initial", {}), ("hydrostatic", "jitter"))
+    ini = c.table("initial", d.get("initial", {}), SECTION_KEYS["initial"])
     hydro = c.boolean("initial.hydrostatic", ini.get("hydrostatic", False))
     jitter = c.number("initial.jitter", ini.get("jitter", 0.0), ge=0.0, le=0.25)
-    lim = c.table("limits", d.get("limits", {}), ("max_particles",))
+    lim = c.table("limits", d.get("limits", {}), SECTION_KEYS["limits"])
     maxp = int(c.number("limits.max_particles",
                         lim.get("max_particles", DEFAULT_MAX_PARTICLES), ge=1))
 
@@ -226,6 +225,12 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
     if "damping" in extra:
         from . import waves
         extra["damping"] = waves.validate_damping(c, extra["damping"], dim)
+    if "probes" in extra or "forces" in extra:   # sampled while the run steps (sphgraph.probes)
+        from . import probes
+        probes.check(c, extra, dim)
+    if "balance" in extra:   # load balancing (sphgraph.balance); the schedule's and flags' layers at set-up
+        from .balance import check_layer
+        check_layer(extra["balance"], f"{source}: balance.")
 
     kwargs = dict(name=name, dim=dim, dp=dp, end_time=end_time, output_interval=out_dt,
                   domain_min=dmin, domain_max=dmax, physics=physics,
@@ -234,6 +239,24 @@ def validate(d, source: str, default_name: str) -> tuple[dict, bool]:
                   extra=extra, periodic=tuple(periodic), exclude_outside=exclude,
                   exclude_max_share=share)
     return kwargs, text_ok
+
+
+def schema_keys() -> list[str]:
+    """Every key a scene can hold, as a canonical dotted path (``fluid[].min``), read from
+    the tables the checks themselves take their keys from -- so a key added to any of them
+    is listed here, and the suite asks it for a range (sphgraph.ranges)."""
+    from . import balance, motion, probes, waves
+    keys = list(TOP_KEYS)
+    keys += [f"{t}.{k}" for t, ks in SECTION_KEYS.items() for k in ks]
+    keys += [f"physics.{k}" for k in PhysicsConfig.field_names()]
+    for (group, _), ks in list(_ENTRY_KEYS.items()) + list(shapes.KEYS.items()):
+        keys += [f"{group}[].{k}" for k in ks]
+    keys += [f"motion[].{k}" for ks in motion.KEYS.values() for k in ks]
+    keys += [f"damping[].{k}" for k in waves.DAMPING_KEYS]
+    keys += [f"balance.{k}" for k in balance.KEYS]
+    keys += [f"{t}.{k}" for t, ks in probes.TABLE_KEYS.items() for k in ks]
+    keys += [f"{t}[].{k}" for t, ks in probes.ITEM_KEYS.items() for k in ("name",) + ks]
+    return sorted(set(keys))
 
 
 # --- validation helpers ------------------------------------------------------------------

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
+from .balance import expected_form
 from .errors import InputError
 from .files import SCHEDULE_LIMIT, parse_toml, read_text
 from .graph.build import find_deadlock, multi_rank_graph, order_violations, rank_graph
@@ -122,10 +123,8 @@ class Schedule:
             if typ is None:
                 problems.append(f"{source}: rebalance.{k}: unknown key: expected one of "
                                 f"{', '.join(REBALANCE_KEYS)}")
-            elif typ is float and (isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0):
-                problems.append(f"{source}: rebalance.{k}: expected a number >= 0, got {v!r}")
-            elif typ is int and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
-                problems.append(f"{source}: rebalance.{k}: expected an integer >= 1, got {v!r}")
+            elif typ is not str and expected_form(k, v) is not None:   # the range of balance.KEY
+                problems.append(f"{source}: rebalance.{k}: expected {expected_form(k, v)}, got {v!r}")
             elif k == "policy" and v not in POLICIES:
                 problems.append(f"{source}: rebalance.policy: expected one of {', '.join(POLICIES)}, got {v!r}")
         if problems:

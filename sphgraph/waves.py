@@ -77,7 +77,7 @@ def flap_ratio(kd: float) -> float:
 # --------------------------------------------------------------------------- damping zones
 
 _AXES = ("x", "y", "z")
-_DAMP_KEYS = ("axis", "start", "end", "overlimit", "redumax")
+DAMPING_KEYS = ("axis", "start", "end", "overlimit", "redumax")
 
 
 def validate_damping(c, raw, dim: int) -> list:
@@ -89,7 +89,7 @@ def validate_damping(c, raw, dim: int) -> list:
     out = []
     for i, e in enumerate(raw):
         key = f"damping[{i}]"
-        c.table(key, e, _DAMP_KEYS)
+        c.table(key, e, DAMPING_KEYS)
         ax = c.choice(f"{key}.axis", e.get("axis", "x"), _AXES[:dim])
         a = c.number(f"{key}.start", c.require(key, e, "start"))
         b = c.number(f"{key}.end", c.require(key, e, "end"))

@@ -465,13 +465,13 @@ def _patch(name, *edits):
 
 @pytest.mark.parametrize("edits,key,form", [
     # [probes]/[forces] interval = nan / inf passed `iv < 0` and ran
-    ((("probes.interval", math.nan),), "probes.interval", "a finite number >= 0"),
-    ((("probes.interval", math.inf),), "probes.interval", "a finite number >= 0"),
-    ((("forces.interval", math.nan),), "forces.interval", "a finite number >= 0"),
-    ((("forces.interval", -math.inf),), "forces.interval", "a finite number >= 0"),
-    ((("probes.points.0.position", [math.nan, 0.1]),), "probes.points[0].position", "a list of 2 finite"),
-    ((("probes.heights.0.position", [math.inf]),), "probes.heights[0].position", "a list of 1 finite"),
-    ((("forces.bodies.0.max", [math.inf, 0.8]),), "forces.bodies[0].max", "a list of 2 finite"),
+    ((("probes.interval", math.nan),), "probes.interval", "a number >= 0 and <= 1e+06 [s]"),
+    ((("probes.interval", math.inf),), "probes.interval", "a number >= 0 and <= 1e+06 [s]"),
+    ((("forces.interval", math.nan),), "forces.interval", "a number >= 0 and <= 1e+06 [s]"),
+    ((("forces.interval", -math.inf),), "forces.interval", "a number >= 0 and <= 1e+06 [s]"),
+    ((("probes.points.0.position", [math.nan, 0.1]),), "probes.points[0].position", "a list of 2 numbers, each"),
+    ((("probes.heights.0.position", [math.inf]),), "probes.heights[0].position", "a list of 1 numbers, each"),
+    ((("forces.bodies.0.max", [math.inf, 0.8]),), "forces.bodies[0].max", "a list of 2 numbers, each"),
 ])
 def test_regression_probe_and_force_keys_reject_nan_and_inf(capsys, edits, key, form):
     rc, err = run_cli(capsys, dumps_toml(_patch("flume", *edits)))

@@ -214,8 +214,8 @@ def test_with_overrides_revalidates_and_keeps_original():
 def test_from_dict_text_round_trip(tmp_path):
     d = dam2d(name="rt", physics={"kernel": "cubic", "coefh": 1.2},
               initial={"hydrostatic": True},
-              probes={"points": [[0.5, 0.1], [1.0, 0.2]], "every": 10,
-                      "gauge": [{"name": 'a "quoted" é', "at": [1.0, 0.0]}]})
+              probes={"interval": 0.01, "points": [{"name": 'a "quoted" é', "position": [0.5, 0.1]},
+                                                   {"position": [1.0, 0.2]}]})
     s = Scene.from_dict(d)
     assert s.extra == {"probes": d["probes"]}
     p = tmp_path / "rt.toml"
@@ -246,14 +246,20 @@ def test_dumps_toml_plain_types():
     assert back == d
 
 
-def test_extra_tables_are_kept_raw():
+def test_extra_tables_are_validated_when_read_and_kept():
     assert set(EXTRA_TABLES) >= {"balance", "probes", "forces", "motion"}
-    d = dam2d(balance={"every": 50, "anything": ["goes"]}, forces=[{"body": 1}])
+    d = dam2d(balance={"every": 50, "smoothing": 0.5},
+              forces={"bodies": [{"name": "tank", "min": [0.0, 0.0], "max": [4.0, 3.0]}]})
     s = Scene.from_dict(d)
     assert s.extra == {"balance": d["balance"], "forces": d["forces"]}
-    # [[motion]] is validated by sphgraph.motion now (tests/test_motion.py)
-    with pytest.raises(InputError, match=r"motion\[0\]\.type"):
-        Scene.from_dict(dam2d(motion=[{"body": 1}]))
+    # each feature's checks answer when the scene is read, every number by its range
+    for bad, match in ((dict(balance={"every": 50, "anything": ["goes"]}), r"balance\.anything: unknown key"),
+                       (dict(balance={"every": 10 ** 400}), r"balance\.every: expected an integer >= 1"),
+                       (dict(forces=[{"body": 1}]), r": forces: expected a table"),
+                       (dict(probes={"interval": 1e300}), r"probes\.interval: expected a number >= 0"),
+                       (dict(motion=[{"body": 1}]), r"motion\[0\]\.type")):
+        with pytest.raises(InputError, match=match):
+            Scene.from_dict(dam2d(**bad))
 
 
 def test_default_name_and_output_interval(tmp_path):

@@ -150,7 +150,8 @@ def test_study_csv_png_pareto_and_target(tmp_path, capsys):
 
 def test_run_writes_probes_and_forces_groups(tmp_path):
     """A scene with [probes] and [forces]: `sphgraph.run` samples them at their interval and
-    writes /probes and /forces; a bad table is refused before anything is written."""
+    writes /probes and /forces; a bad table is refused when the scene is read, before anything
+    is written."""
     import sphgraph
     from sphgraph.io import read_group
     sc = _tank({"end_time": 0.02, "dp": 0.05,
@@ -163,9 +164,8 @@ def test_run_writes_probes_and_forces_groups(tmp_path):
     assert g["P"]["velocity"].shape == (5, 2) and np.all(g["P"]["pressure"] > 0.9 * 1000 * 9.81 * 0.3)
     f = read_group(res.out_dir, "forces")
     assert len(f["time"]) == res.steps + 1 and f["tank"]["force"].shape == (res.steps + 1, 2)
-    bad = _tank({"probes": {"points": [{"name": "P"}]}})
-    with pytest.raises(InputError):
-        sphgraph.run(bad, out=tmp_path / "bad", progress=False)
+    with pytest.raises(InputError, match=r"probes\.points\[0\]\.position"):   # refused when the scene is read
+        sphgraph.run(_tank({"probes": {"points": [{"name": "P"}]}}), out=tmp_path / "bad", progress=False)
     assert not (tmp_path / "bad").exists()
 
 
