@@ -16,8 +16,8 @@ drop_stale_cache(__file__)  # before the cached kernels below are loaded
 from sphgraph.cells import cell_window  # noqa: E402
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
-from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
-from sphgraph.physics.kernels import grad_factor  # noqa: E402
+from sphgraph.physics.interact import (bound_pair, dufort_frankel_rho, fluid_pair, fluid_pair_df,  # noqa: E402
+                                       riemann_pair)
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -314,7 +314,7 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                         dvy = vya - svel[j, 1]
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
-                            fx, fy, fz, fr, fd, fc, fv = fluid_pair(
+                            fx, fy, fz, fr, fd, fc, fv, fk = fluid_pair_df(
                                 drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
                             axx += fx
@@ -323,8 +323,7 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                             arr += fr
                             dd += fd
                             cc |= fc
-                            if not b_bound:
-                                kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
+                            kk += fk
                         elif not b_bound:
                             fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
                                                 mf, prm, kernel)
@@ -436,8 +435,7 @@ def verlet(pos, vel, rho, vel_m1, rho_m1, kind, ace, ar, dt, euler, rho0, dk):
         if euler:
             rnew = rho[i] + dt * ar[i]
         elif df:
-            kd = dt * dk[i]
-            rnew = (rho_m1[i] * (1.0 - kd) + dt2 * (ar[i] + dk[i] * rho[i])) / (1.0 + kd)
+            rnew = dufort_frankel_rho(rho_m1[i], rho[i], ar[i], dk[i], dt)
         else:
             rnew = rho_m1[i] + dt2 * ar[i]
         rho_m1[i] = rho[i]

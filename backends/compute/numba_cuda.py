@@ -35,6 +35,7 @@ from sphgraph.cells import grid_dims, reach_cells
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_RHO0, P_SUPPORT2
 from sphgraph.registry import register
 
+from . import cuda_dufort as CD
 from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
@@ -1162,13 +1163,14 @@ class NumbaCUDA(ComputeBackend):
                        "cancel": dev_array(m, np.int8)}
                 dv.parts[part] = buf
             out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
+        dfa = CD.ddk_out(state, dv, part, final)      # K_a out (the DuFort-Frankel step), else ()
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
         if n and part == "interior":
             g = dv.grid
             nf, FB = dv.nf, CK.FORCE_BLOCK
-            built = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
+            built = (CD.force_kernels if dfa else CK.force_kernels)(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
                                      int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
             if built.relative:
@@ -1186,7 +1188,7 @@ class NumbaCUDA(ComputeBackend):
                             1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]))
                 if nf:
                     kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]),
-                                                         *rel_args, *out)
+                                                         *rel_args, *out, *dfa)
                 if n > nf:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], nf, n, start,
                                                              int(g["ncells"]), *rel_args, *out)
@@ -1203,13 +1205,14 @@ class NumbaCUDA(ComputeBackend):
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](
                         A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
-            k.k_forces[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
+            kh = self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else k.k_forces
+            kh[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
                 A["rho"], A["press"], A["kind"], n, *src,
                 start, float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                 int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                 dv.prm_d(state), dim, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]),
-                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out, *dfa)
         dv.final = final
         self._sync()
 
@@ -1250,11 +1253,12 @@ class NumbaCUDA(ComputeBackend):
                 ft(pad), ft(tpad), int(halo.dims[0]), int(halo.dims[1]), int(halo.dims[2]),
                 int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
                 buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
-        kf = self._on(state, HK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
-                                              int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
+        dfa = CD.ddk_out(state, dv, part, False)
+        kf = self._on(state, (CD.halo_force_kernels if dfa else HK.force_kernels)(
+            dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
         FB = CK.FORCE_BLOCK
         if fb:
-            kf.k_halo_fv[CK.blocks(fb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro, *args)
+            kf.k_halo_fv[CK.blocks(fb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro, *args, *dfa)
         if bb:
             kf.k_halo_bv[CK.blocks(bb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro + 2, *args)
         dv.final = False
@@ -1270,6 +1274,7 @@ class NumbaCUDA(ComputeBackend):
         k = self._k(state)
         if dv.halo_ranges and dv.n:
             self._reduce_ranged(state, dv)
+            CD.reduce(self, state, dv, True)
             self._sync()
             return
         bufs = [dv.parts[p] for p in ("interior", "halo_1", "halo_2") if p in dv.parts]
@@ -1286,6 +1291,7 @@ class NumbaCUDA(ComputeBackend):
         if dv.n:
             k.k_reduce[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]),
                                                  ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"])
+        CD.reduce(self, state, dv, False)
         self._sync()
 
     def _reduce_ranged(self, state, dv) -> None:
@@ -1345,9 +1351,12 @@ class NumbaCUDA(ComputeBackend):
         if n:
             b = CK.blocks(n)
             if integrator == "verlet":
-                k.k_verlet[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
-                                        A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
-                                        A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, bool(euler), rho0)
+                va = (A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"], A["vmx"], A["vmy"], A["vmz"],
+                      A["rhom"], A["kind"], A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, bool(euler), rho0)
+                if CD.enabled(state):
+                    CD.verlet(self, state, dv, va)
+                else:
+                    k.k_verlet[b, CK.BLOCK](*va)
             else:
                 # Symplectic stage-start velocity and density reuse the Verlet history slots
                 kern = k.k_sym_predict if stage == 1 else k.k_sym_correct
