@@ -55,10 +55,6 @@ class Features:
         from .motion import Motion
         from .waves import Damping
         s = self.scene
-        if s.physics.riemann != "none" and sim.compute.name != "numba-cpu":
-            from .errors import InputError
-            raise InputError(f"{s.source}: physics.riemann: {s.physics.riemann!r} runs with --backend numba-cpu "
-                             f"(or use riemann = \"none\"), got {sim.compute.name}")
         self.motion = Motion.from_scene(s, particles)
         self.damping = Damping.from_scene(s)
         if s.periodic:

@@ -40,6 +40,7 @@ from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from . import cuda_launch as CL
+from . import cuda_riemann as CR
 from . import upload_kernels as UK
 from .base import ComputeBackend, dt_from_terms
 
@@ -1170,8 +1171,8 @@ class NumbaCUDA(ComputeBackend):
         if n and part == "interior":
             g = dv.grid
             nf, FB = dv.nf, CK.FORCE_BLOCK
-            built = (CD.force_kernels if dfa else CK.force_kernels)(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
-                                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
+            built = (CD.force_kernels if dfa else CR.force_kernels if CR.enabled(state) else CK.force_kernels)(
+                dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
             if built.relative:
                 # cell ranges from the relative positions: origin less the reference point,
@@ -1205,7 +1206,8 @@ class NumbaCUDA(ComputeBackend):
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](
                         A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
-            kh = self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else k.k_forces
+            kh = (self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else
+                  self._on(state, CR.build(dv.dtype)).k_forces if CR.enabled(state) else k.k_forces)
             kh[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
                 A["rho"], A["press"], A["kind"], n, *src,
@@ -1254,7 +1256,8 @@ class NumbaCUDA(ComputeBackend):
                 int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
                 buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
         dfa = CD.ddk_out(state, dv, part, False)
-        kf = self._on(state, (CD.halo_force_kernels if dfa else HK.force_kernels)(
+        kf = self._on(state, (CD.halo_force_kernels if dfa else CR.halo_force_kernels if CR.enabled(state)
+                              else HK.force_kernels)(
             dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
         FB = CK.FORCE_BLOCK
         if fb:
