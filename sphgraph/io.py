@@ -61,8 +61,8 @@ FRAMES_DIR = "frames"
 FRAME_GROUP = "/frame"
 OUTPUT_FORMAT = 1
 FRAME_FIELDS = ("id", "kind", "position", "velocity", "density", "pressure")
-TIMING_FIELDS = ("rank", "step", "task", "lane", "start", "end")
-_TIMING_DTYPES = {"rank": np.int32, "step": np.int64, "start": np.float64, "end": np.float64}
+TIMING_FIELDS = ("rank", "step", "task", "lane", "start", "end", "bytes")
+_TIMING_DTYPES = {"rank": np.int32, "step": np.int64, "start": np.float64, "end": np.float64, "bytes": np.int64}
 _PRECISIONS = {"float32": np.float32, "float64": np.float64}
 # names the master reserves for itself; write_group may not replace them
 _RESERVED = {"frames", "timing"}
@@ -359,7 +359,7 @@ class OutputWriter:
                 raise ValueError(f"write_frame: particle id {dup} appears more than once")
         return {k: np.ascontiguousarray(v) for k, v in data.items()}
 
-    def write_timing(self, rank, step, task, lane, start, end) -> None:
+    def write_timing(self, rank, step, task, lane, start, end, nbytes=0) -> None:
         """Append task timings (parallel arrays, or scalars broadcast to them).
 
         Parameters
@@ -369,6 +369,9 @@ class OutputWriter:
             Task name (a ``TaskKind`` value) and lane (compute / comm / copy).
         start, end : array_like of float
             Seconds from run start (virtual seconds under mock MPI).
+        nbytes : array_like of int, optional
+            Bytes the task posted to other ranks (halo edges, displaced rows, periodic
+            images: the payloads' ``nbytes``); 0 for tasks that send nothing.
 
         Notes
         -----
@@ -377,7 +380,7 @@ class OutputWriter:
         """
         self._check_open()
         cols = np.broadcast_arrays(np.asarray(rank), np.asarray(step), np.asarray(task),
-                                   np.asarray(lane), np.asarray(start), np.asarray(end))
+                                   np.asarray(lane), np.asarray(start), np.asarray(end), np.asarray(nbytes))
         cols = [np.atleast_1d(c).ravel() for c in cols]
         chunk = {}
         for name, col in zip(TIMING_FIELDS, cols):
@@ -759,6 +762,8 @@ def _read_timing_group(f: h5py.File, decode: bool = True) -> dict[str, np.ndarra
     out = {}
     for name in TIMING_FIELDS:
         arr = g[name][()] if g is not None and name in g else empty[name]
+        if name == "bytes" and g is not None and name not in g and "rank" in g:   # written before the column
+            arr = np.zeros(len(g["rank"]), _TIMING_DTYPES[name])
         if name in ("task", "lane"):
             arr = _decode_strings(arr) if decode else np.asarray(arr, dtype="S")
         out[name] = arr
@@ -766,7 +771,8 @@ def _read_timing_group(f: h5py.File, decode: bool = True) -> dict[str, np.ndarra
 
 
 def read_timing(out_dir) -> dict[str, np.ndarray]:
-    """``/timing`` as parallel arrays ``rank``, ``step``, ``task``, ``lane``, ``start``, ``end``.
+    """``/timing`` as parallel arrays ``rank``, ``step``, ``task``, ``lane``, ``start``, ``end``,
+    ``bytes`` (what the task sent to other ranks).
 
     ``task`` and ``lane`` are numpy str arrays; empty arrays when nothing was timed.
     """

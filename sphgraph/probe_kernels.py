@@ -4,9 +4,13 @@ instead of dense body x fluid pair matrices."""
 import numpy as np
 from numba import njit, prange
 
-from .cells import cell_window
-from .config import P_H
-from .physics.kernels import grad_factor
+from .physics import drop_stale_cache
+
+drop_stale_cache(__file__)  # the kernel inlines sphgraph.physics: recompile when it changes
+
+from .cells import cell_window  # noqa: E402
+from .config import P_H  # noqa: E402
+from .physics.kernels import grad_factor  # noqa: E402
 
 
 @njit(parallel=True, cache=True)

@@ -57,11 +57,13 @@ class TaskTimes:
     lane: list = field(default_factory=list)
     start: list = field(default_factory=list)
     end: list = field(default_factory=list)
+    nbytes: list = field(default_factory=list)   # bytes the task sent (RankState.bytes_sent's growth)
 
     def columns(self) -> dict:
         return {"rank": np.array(self.rank, np.int32), "step": np.array(self.step, np.int64),
                 "task": np.array(self.task, dtype=object), "lane": np.array(self.lane, dtype=object),
-                "start": np.array(self.start, float), "end": np.array(self.end, float)}
+                "start": np.array(self.start, float), "end": np.array(self.end, float),
+                "bytes": np.array(self.nbytes, np.int64)}
 
     def seconds_by_kind(self, first_step: int = 0) -> dict:
         out: dict[str, float] = {}
@@ -144,8 +146,13 @@ class Scheduler:
         self.t_origin = t_origin
         self.record_times = True
         self.force_sinks = {c.rank: c.balancer for c in contexts if c.balancer is not None}
+        self._ctx = {c.rank: c for c in contexts}
+        self._sent = {c.rank: c.state.bytes_sent for c in contexts}
 
     def _record(self, rank, task, start, end):
+        sent = self._ctx[rank].state.bytes_sent    # a rank's tasks are recorded in the order they ran
+        nbytes = sent - self._sent[rank]
+        self._sent[rank] = sent
         sink = self.force_sinks.get(rank)
         if sink is not None and task.label.startswith("forces_"):
             sink.note_force_time(rank, end - start)
@@ -158,6 +165,7 @@ class Scheduler:
         t.lane.append(task.lane)
         t.start.append(start - self.t_origin)
         t.end.append(end - self.t_origin)
+        t.nbytes.append(nbytes)
 
     def step(self, rebalance: bool = False) -> None:
         progs = self.programs_rebalance if rebalance else self.programs

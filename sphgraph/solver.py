@@ -529,4 +529,5 @@ def _write_timing(writer, sim) -> None:
         return
     _write_balance(writer, sim)
     if len(cols["rank"]):
-        writer.write_timing(cols["rank"], cols["step"], cols["task"], cols["lane"], cols["start"], cols["end"])
+        writer.write_timing(cols["rank"], cols["step"], cols["task"], cols["lane"], cols["start"], cols["end"],
+                            cols["bytes"])

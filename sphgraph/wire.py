@@ -50,3 +50,17 @@ def decode(code: int, buf: np.ndarray) -> WirePayload:
         from .errors import CommError
         raise CommError(f"a message of wire code {int(code)}, which no payload type of this process decodes")
     return cls.from_wire(buf)
+
+
+def payload_nbytes(payload) -> int:
+    """Bytes of the numpy arrays a payload carries (Halo, Particles, array, None; a
+    WirePayload says its own)."""
+    if payload is None:
+        return 0
+    if isinstance(payload, WirePayload):     # e.g. a device edge: the rows move device to device
+        return int(payload.nbytes())
+    if isinstance(payload, np.ndarray):
+        return int(payload.nbytes)
+    if hasattr(payload, "__dict__"):
+        return sum(int(v.nbytes) for v in vars(payload).values() if isinstance(v, np.ndarray))
+    return 0

@@ -85,7 +85,7 @@ def test_master_layout_through_h5py(tmp_path):
             np.testing.assert_array_equal(g["position"][()], frames[2]["position"])
             assert g["id"].dtype == np.int64 and g["kind"].dtype == np.int8
             assert f.attrs["scene"] == SCENE and f.attrs["dim"] == 3
-            assert sorted(f["timing"]) == ["end", "lane", "rank", "start", "step", "task"]
+            assert sorted(f["timing"]) == ["bytes", "end", "lane", "rank", "start", "step", "task"]
     finally:
         os.chdir(cwd)
     assert (out / "frames" / "frame_000002.h5").is_file()

@@ -185,6 +185,15 @@ def test_output_under_mock_ranks(tmp_path):
     cols = res.timing.columns()
     assert set(cols["rank"].tolist()) == {0, 1, 2}
     assert (cols["end"] >= cols["start"]).all()
+    # /timing's bytes: what each task sent; the edges carry the halos, nothing else sends
+    from sphgraph.io import read_timing
+    t = read_timing(res.out_dir)
+    kind = np.array([str(x).split("@")[0] for x in t["task"]])
+    edges = t["bytes"][kind == "send_edges"]
+    assert len(edges) and (edges > 0).all()
+    assert (t["bytes"][~np.isin(kind, ["send_edges", "send_displaced"])] == 0).all()
+    rank1 = t["bytes"][(kind == "send_edges") & (t["rank"] == 1)]
+    assert len(rank1) and rank1.min() > 0      # the middle rank sends both ways
 
 
 # --------------------------------------------------------------------------- real MPI
@@ -249,3 +258,5 @@ def test_mpi_cli_run_writes_one_output(tmp_path):
     t = read_timing(out)
     assert set(np.asarray(t["rank"]).tolist()) == {0, 1}       # every rank's timings, gathered
     assert "recv_halo_1@1" in {str(x) for x in t["task"][np.asarray(t["rank"]) == 1]}
+    sent = np.asarray(t["bytes"])[np.char.startswith(np.asarray(t["task"]).astype(str), "send_edges")]
+    assert len(sent) and (sent > 0).all()                      # the halo bytes of every rank, gathered

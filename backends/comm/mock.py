@@ -55,7 +55,7 @@ import numpy as np
 from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.errors import SphgraphError as InternalError
 from sphgraph.registry import register
-from sphgraph.wire import WirePayload
+from sphgraph.wire import payload_nbytes
 
 from sphgraph.perfmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
                                 pairs_per_particle, step_pricing, task_features)
@@ -100,18 +100,6 @@ class _Faults:
             return number in self.numbers
         return self.p > 0 and self.rng.random() < self.p
 
-
-def payload_nbytes(payload) -> int:
-    """Bytes of the numpy arrays a payload carries (Halo, Particles, array, None)."""
-    if payload is None:
-        return 0
-    if isinstance(payload, WirePayload):     # e.g. a device edge: the rows move device to device
-        return int(payload.nbytes())
-    if isinstance(payload, np.ndarray):
-        return int(payload.nbytes)
-    if hasattr(payload, "__dict__"):
-        return sum(int(v.nbytes) for v in vars(payload).values() if isinstance(v, np.ndarray))
-    return 0
 
 
 def freeze(payload):

@@ -16,8 +16,10 @@ drop_stale_cache(__file__)  # before the cached kernels below are loaded
 from sphgraph.cells import cell_window  # noqa: E402
 from sphgraph.config import O_DDT, O_DIM, O_KERNEL, O_LAMINAR, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
 from sphgraph.physics.eos import tait  # noqa: E402
-from sphgraph.physics.interact import (bound_pair, dufort_frankel_rho, fluid_pair, fluid_pair_df,  # noqa: E402
-                                       riemann_pair)
+from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, riemann_pair  # noqa: E402
+from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,  # noqa: E402
+                                        predict_density, verlet_axis, verlet_density)
+from sphgraph.physics.kernels import grad_factor  # noqa: E402
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -233,7 +235,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
         visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
-@njit(parallel=True, fastmath=True, cache=True)
+@njit(parallel=True, cache=True)
 def forces_df(dpos, dvel, drho, dpress, dkind,
            spos, svel, srho, spress, skind,
            start, origin, inv_size, dims, axes, reach,
@@ -241,7 +243,9 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
     """`forces`, and in the same pass `ddk` = K_a = sum_b k_ab over the fluid sources
     (`interact.diffusion_coef`) for the DuFort-Frankel diffusion step (`verlet`); boundary
     sources add nothing (where they cancel a's diffusion, `reduce_parts` zeroes K_a with its
-    term). A kernel of its own, so that `forces` (the default path) is compiled as it was."""
+    term). A kernel of its own, so that `forces` (the default path) is compiled as it was.
+    Without fastmath: with it, the compiled code (and the run's bits) depended on which
+    kernels the process had compiled before this one."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
     ddt_kind = opt[O_DDT]
@@ -314,7 +318,7 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                         dvy = vya - svel[j, 1]
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
-                            fx, fy, fz, fr, fd, fc, fv, fk = fluid_pair_df(
+                            fx, fy, fz, fr, fd, fc, fv = fluid_pair(
                                 drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
                             axx += fx
@@ -323,7 +327,8 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                             arr += fr
                             dd += fd
                             cc |= fc
-                            kk += fk
+                            if not b_bound:
+                                kk += diffusion_coef(r2, grad_factor(r2, prm, kernel), srho[j], mf, prm)
                         elif not b_bound:
                             fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
                                                 mf, prm, kernel)
@@ -418,74 +423,53 @@ def dt_terms(ace, vel, visc, kind, out):
 
 @njit(parallel=True, cache=True)
 def verlet(pos, vel, rho, vel_m1, rho_m1, kind, ace, ar, dt, euler, rho0, dk):
-    """Verlet step (DualSPHysics ComputeVerlet), Euler step when `euler`.
-
-    fluid:  r += dt v + dt^2/2 a;  v_new = v_m1 + 2dt a (Euler: v + dt a);
-            rho_new = rho_m1 + 2dt ar (Euler: rho + dt ar); with `dk` (K_a, as long as
-            rho: the DuFort-Frankel diffusion step, sphgraph.physics.interact)
-            rho_new = (rho_m1 (1 - dt K_a) + 2dt (ar + K_a rho)) / (1 + dt K_a)
-    boundary (DBC): rho as above, clamped to >= rho0 (DualSPHysics
-            ComputeVerletVarsBound: stops boundaries attracting fluid); fixed position.
-    """
+    """Verlet step of every row (sphgraph.physics.integrate), Euler step when `euler`;
+    `dk` (K_a, as long as rho) selects the DuFort-Frankel density-diffusion form."""
     dim = pos.shape[1]
-    dt2 = 2.0 * dt
-    dt205 = 0.5 * dt * dt
     df = dk.shape[0] == rho.shape[0] and rho.shape[0] > 0
     for i in prange(pos.shape[0]):
-        if euler:
-            rnew = rho[i] + dt * ar[i]
-        elif df:
-            rnew = dufort_frankel_rho(rho_m1[i], rho[i], ar[i], dk[i], dt)
-        else:
-            rnew = rho_m1[i] + dt2 * ar[i]
+        rnew = verlet_density(rho[i], rho_m1[i], ar[i], dk[i] if df else 0.0, dt, euler, df)
         rho_m1[i] = rho[i]
         if kind[i] == 0:
             for d in range(dim):
                 v = vel[i, d]
-                pos[i, d] += dt * v + dt205 * ace[i, d]
-                vel[i, d] = (v if euler else vel_m1[i, d]) + (dt if euler else dt2) * ace[i, d]
+                pos[i, d], vel[i, d] = verlet_axis(pos[i, d], v, vel_m1[i, d], ace[i, d], dt, euler)
                 vel_m1[i, d] = v
             rho[i] = rnew
         else:
-            rho[i] = rnew if rnew > rho0 else rho0
+            rho[i] = bound_density(rnew, rho0)
 
 
 @njit(parallel=True, cache=True)
 def symplectic_predict(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_ref):
-    """Symplectic predictor (DualSPHysics ComputeSymplecticPre), half step dt/2."""
+    """Symplectic predictor of every row (half step dt/2), the stage start kept in
+    pos0, vel0, rho0_."""
     dim = pos.shape[1]
-    h = 0.5 * dt
     for i in prange(pos.shape[0]):
         rho0_[i] = rho[i]
-        r = rho[i] + h * ar[i]
+        r = predict_density(rho[i], ar[i], dt)
         if kind[i] == 0:
             for d in range(dim):
                 pos0[i, d] = pos[i, d]
                 vel0[i, d] = vel[i, d]
-                pos[i, d] += h * vel[i, d]
-                vel[i, d] += h * ace[i, d]
+                pos[i, d], vel[i, d] = predict_axis(pos[i, d], vel[i, d], ace[i, d], dt)
             rho[i] = r
         else:
-            rho[i] = r if r > rho_ref else rho_ref
+            rho[i] = bound_density(r, rho_ref)
 
 
 @njit(parallel=True, cache=True)
 def symplectic_correct(pos, vel, rho, pos0, vel0, rho0_, kind, ace, ar, dt, rho_ref):
-    """Symplectic corrector (DualSPHysics ComputeSymplecticCorr):
-    rho = rho0 (2 - e)/(2 + e), e = -ar/rho dt (Pade form of rho0 exp(ar/rho dt));
-    v = v0 + dt a;  r = r0 + dt (v + v0)/2."""
+    """Symplectic corrector of every row from the stage start (pos0, vel0, rho0_)."""
     dim = pos.shape[1]
     for i in prange(pos.shape[0]):
-        e = -ar[i] / rho[i] * dt
-        r = rho0_[i] * (2.0 - e) / (2.0 + e)
+        r = correct_density(rho0_[i], rho[i], ar[i], dt)
         if kind[i] == 0:
             for d in range(dim):
-                v = vel0[i, d] + dt * ace[i, d]
-                pos[i, d] = pos0[i, d] + dt * 0.5 * (v + vel0[i, d])
-                vel[i, d] = v
+                pos[i, d], vel[i, d] = correct_axis(pos0[i, d], vel0[i, d], ace[i, d], dt)
             rho[i] = r
         else:
-            rho[i] = r if r > rho_ref else rho_ref
+            rho[i] = bound_density(r, rho_ref)
 
 
 @njit(parallel=True, cache=True)

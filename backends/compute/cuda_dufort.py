@@ -1,6 +1,6 @@
 """numba.cuda kernels of the DuFort-Frankel density-diffusion step (`[physics] diffusion_time =
-"dufort-frankel"`, sphgraph.physics.interact): the GPU twin of cpu_kernels.forces_df,
-reduce_parts (its K_a part) and verlet.
+"dufort-frankel"`, sphgraph.physics.interact): the GPU twin of cpu_kernels.forces_df and
+reduce_parts (its K_a part).
 
 * The fluid force kernels of the rank's own rows (k_forces_fv_df), of an ipc halo
   (k_halo_fv_df) and of a host-binned halo (k_forces_df) are those of cuda_forces /
@@ -12,10 +12,11 @@ reduce_parts (its K_a part) and verlet.
   compiled as it was.
 * k_reduce_ddk / k_reduce_ranged_ddk: the parts' K_a summed in the order of k_reduce /
   k_reduce_ranged, zeroed where a part cancelled the diffusion (cpu_kernels.reduce_parts).
-* k_verlet_df: cuda_integrate.k_verlet with the density of `dufort_frankel_rho`.
+* the Verlet step is cuda_integrate.k_verlet's, whose density is sphgraph.physics.integrate's
+  `verlet_density` (the CPU's) with its DuFort-Frankel form on: it reads K_a (`ddk_in`).
 
-`outputs`, `reduce` and `verlet` are the backend's entry points (numba_cuda calls them when
-`opt[O_DDT_DF]` is set).
+`ddk_out`, `reduce` and `ddk_in` are the backend's entry points (numba_cuda calls them; each
+is a no-op or empty without `opt[O_DDT_DF]`).
 """
 import math  # noqa: F401  (the cloned device functions use it)
 import types
@@ -25,7 +26,7 @@ from numba import cuda, int32, njit  # noqa: F401
 
 from sphgraph.cells import cell_window  # noqa: F401
 from sphgraph.config import O_DDT_DF, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
-from sphgraph.physics.interact import bound_pair, dufort_frankel_rho, fluid_pair_df  # noqa: F401
+from sphgraph.physics.interact import bound_pair, fluid_pair_df  # noqa: F401
 
 from . import cuda_forces as CF
 from . import cuda_halo_kernels as HK
@@ -313,48 +314,14 @@ def k_reduce_ranged_ddk(n, kind, k0, c0, rng, h1, o1, k1, c1, h2, o2, k2, c2, dd
     ddk_[i] = s if cc == 0 else zero * s
 
 
-def k_verlet_df(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar,
-                n, dim, dt, euler, rho0, ddk):
-    """cuda_integrate.k_verlet with the density of the DuFort-Frankel step (cpu_kernels.verlet
-    with `dk`): K_a of fluid rows from ddk, 0 for boundary rows (the leapfrog's density)."""
-    i = cuda.grid(1)
-    if i >= n:
-        return
-    dt2 = 2.0 * dt
-    dt205 = 0.5 * dt * dt
-    if euler:
-        rnew = rho[i] + dt * ar[i]
-    else:
-        k = ddk[i] if kind[i] == 0 else 0.0 * ar[i]
-        rnew = dufort_frankel_rho(rhom[i], rho[i], ar[i], k, dt)
-    rhom[i] = rho[i]
-    if kind[i] == 0:
-        v = vx[i]
-        px[i] += dt * v + dt205 * ax[i]
-        vx[i] = (v if euler else vxm[i]) + (dt if euler else dt2) * ax[i]
-        vxm[i] = v
-        v = vy[i]
-        py[i] += dt * v + dt205 * ay[i]
-        vy[i] = (v if euler else vym[i]) + (dt if euler else dt2) * ay[i]
-        vym[i] = v
-        if dim == 3:
-            v = vz[i]
-            pz[i] += dt * v + dt205 * az[i]
-            vz[i] = (v if euler else vzm[i]) + (dt if euler else dt2) * az[i]
-            vzm[i] = v
-        rho[i] = rnew
-    else:
-        rho[i] = rnew if rnew > rho0 else rho0
-
-
 # ------------------------------------------------------------------------------ compilation
-_PLAIN = ("k_forces_df", "k_reduce_ddk", "k_reduce_ranged_ddk", "k_verlet_df")
+_PLAIN = ("k_forces_df", "k_reduce_ddk", "k_reduce_ranged_ddk")
 _BUILT: dict = {}
 _FORCES: dict = {}
 
 
 def build(dtype) -> types.SimpleNamespace:
-    """k_forces_df, the reductions and k_verlet_df for float type `dtype` (cached)."""
+    """k_forces_df and the reductions for float type `dtype` (cached)."""
     dt = np.dtype(dtype)
     if dt.str not in _BUILT:
         memo = {}
@@ -409,15 +376,23 @@ def _ddk_array(dv, m, name="ddk"):
     return a
 
 
-def ddk_out(state, dv, part, final) -> tuple:
+def ddk_out(be, state, dv, part, final) -> tuple:
     """The extra output of the fluid force kernels of `part` (empty without the DuFort-Frankel
     step): the reduced K_a when the part is `final`, else the part buffer's "ddk" (allocated
-    with the buffer's rows)."""
+    with the buffer's rows). The Verlet kernel reads K_a of every row: a final part has the
+    boundary rows' (nf..n-1) set to 0 here, once for each layout of the rows (nothing else
+    writes them; k_reduce_ddk writes them 0 where there are parts)."""
     if not enabled(state):
         return ()
     m = max(dv.n, dv.cap, 1)
     if final:
-        return (_ddk_array(dv, m),)
+        a = _ddk_array(dv, m)
+        key = (id(a), dv.nf, dv.n)
+        if dv.__dict__.get("ddk_zeroed") != key and dv.n > dv.nf:
+            be._on(state, CK.build(dv.dtype)).k_fill[CK.blocks(dv.n - dv.nf), CK.BLOCK](a[dv.nf:dv.n], dv.n - dv.nf,
+                                                                                       0.0)
+            dv.__dict__["ddk_zeroed"] = key
+        return (a,)
     buf = dv.parts[part]
     a = buf.get("ddk")
     if a is None or a.shape[0] < buf["ar"].shape[0]:
@@ -453,8 +428,9 @@ def reduce(be, state, dv, ranged) -> None:
     k.k_reduce_ddk[CK.blocks(dv.n), CK.BLOCK](len(names), dv.n, A["kind"], *flat, out)
 
 
-def verlet(be, state, dv, args) -> None:
-    """k_verlet_df over the rank's rows; `args` those numba_cuda gives k_verlet."""
-    k = be._on(state, build(dv.dtype))
-    k.k_verlet_df[CK.blocks(dv.n), CK.BLOCK](*args, _ddk_array(dv, max(dv.n, dv.cap, 1)))
-
+def ddk_in(state, dv):
+    """The reduced K_a that numba_cuda's Verlet kernel reads (`k_verlet`, df on), or None
+    without the DuFort-Frankel step."""
+    if not enabled(state):
+        return None
+    return _ddk_array(dv, max(dv.n, dv.cap, 1))

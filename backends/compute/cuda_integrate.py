@@ -1,92 +1,78 @@
 """numba.cuda kernels of the time integration (one thread per row): Verlet and the
-Symplectic predictor and corrector, as backends/compute/cpu_kernels.py.
+Symplectic predictor and corrector. The per-row maths is sphgraph.physics.integrate's,
+as the CPU kernels' (backends/compute/cpu_kernels.py); here the axes are arrays of
+their own (float64 positions, run-type velocities).
 """
 from numba import cuda
+
+from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,
+                                        predict_density, verlet_axis, verlet_density)
 
 KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct")
 
 
-def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar,
-             n, dim, dt, euler, rho0):
-    """As cpu_kernels.verlet (DualSPHysics ComputeVerlet), Euler step when `euler`."""
+def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar, dk,
+             n, dim, dt, euler, rho0, df):
+    """Verlet step, Euler step when `euler`; `df`: the DuFort-Frankel density form with
+    K_a in `dk`."""
     i = cuda.grid(1)
     if i >= n:
         return
-    dt2 = 2.0 * dt
-    dt205 = 0.5 * dt * dt
-    if euler:
-        rnew = rho[i] + dt * ar[i]
-    else:
-        rnew = rhom[i] + dt2 * ar[i]
+    zero = ar[i] - ar[i]
+    rnew = verlet_density(rho[i], rhom[i], ar[i], dk[i] if df else zero, dt, euler, df)
     rhom[i] = rho[i]
     if kind[i] == 0:
         v = vx[i]
-        px[i] += dt * v + dt205 * ax[i]
-        vx[i] = (v if euler else vxm[i]) + (dt if euler else dt2) * ax[i]
+        px[i], vx[i] = verlet_axis(px[i], v, vxm[i], ax[i], dt, euler)
         vxm[i] = v
         v = vy[i]
-        py[i] += dt * v + dt205 * ay[i]
-        vy[i] = (v if euler else vym[i]) + (dt if euler else dt2) * ay[i]
+        py[i], vy[i] = verlet_axis(py[i], v, vym[i], ay[i], dt, euler)
         vym[i] = v
         if dim == 3:
             v = vz[i]
-            pz[i] += dt * v + dt205 * az[i]
-            vz[i] = (v if euler else vzm[i]) + (dt if euler else dt2) * az[i]
+            pz[i], vz[i] = verlet_axis(pz[i], v, vzm[i], az[i], dt, euler)
             vzm[i] = v
         rho[i] = rnew
     else:
-        rho[i] = rnew if rnew > rho0 else rho0
+        rho[i] = bound_density(rnew, rho0)
 
 
-def k_sym_predict(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
+def k_sym_predict(px, py, pz, vx, vy, vz, rho, px0, py0, pz0, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
                   n, dim, dt, rho_ref):
-    """As cpu_kernels.symplectic_predict (half step dt/2). The stage-start position is
-    not kept: the corrector advances the predicted one (see k_sym_correct)."""
+    """Symplectic predictor (half step dt/2); the stage start kept in px0.., vx0.., rho0_."""
     i = cuda.grid(1)
     if i >= n:
         return
-    h = 0.5 * dt
     rho0_[i] = rho[i]
-    r = rho[i] + h * ar[i]
+    r = predict_density(rho[i], ar[i], dt)
     if kind[i] == 0:
+        px0[i] = px[i]
         vx0[i] = vx[i]
+        px[i], vx[i] = predict_axis(px[i], vx[i], ax[i], dt)
+        py0[i] = py[i]
         vy0[i] = vy[i]
-        px[i] += h * vx[i]
-        py[i] += h * vy[i]
-        vx[i] += h * ax[i]
-        vy[i] += h * ay[i]
+        py[i], vy[i] = predict_axis(py[i], vy[i], ay[i], dt)
         if dim == 3:
+            pz0[i] = pz[i]
             vz0[i] = vz[i]
-            pz[i] += h * vz[i]
-            vz[i] += h * az[i]
+            pz[i], vz[i] = predict_axis(pz[i], vz[i], az[i], dt)
         rho[i] = r
     else:
-        rho[i] = r if r > rho_ref else rho_ref
+        rho[i] = bound_density(r, rho_ref)
 
 
-def k_sym_correct(px, py, pz, vx, vy, vz, rho, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
+def k_sym_correct(px, py, pz, vx, vy, vz, rho, px0, py0, pz0, vx0, vy0, vz0, rho0_, kind, ax, ay, az, ar,
                   n, dim, dt, rho_ref):
-    """As cpu_kernels.symplectic_correct: rho = rho0 (2 - e)/(2 + e), e = -ar/rho dt (Pade
-    form of rho0 exp(ar/rho dt)); v = v0 + dt a, r = r0 + dt (v + v0)/2, written
-    as r = r_pred + dt v / 2 (r_pred = r0 + dt v0 / 2): equal up to round-off, and no
-    stage-start copy of the float64 positions (24 B per particle) is needed."""
+    """Symplectic corrector from the stage start (px0.., vx0.., rho0_)."""
     i = cuda.grid(1)
     if i >= n:
         return
-    e = -ar[i] / rho[i] * dt
-    r = rho0_[i] * (2.0 - e) / (2.0 + e)
+    r = correct_density(rho0_[i], rho[i], ar[i], dt)
     if kind[i] == 0:
-        hd = 0.5 * dt
-        v = vx0[i] + dt * ax[i]
-        px[i] += hd * v
-        vx[i] = v
-        v = vy0[i] + dt * ay[i]
-        py[i] += hd * v
-        vy[i] = v
+        px[i], vx[i] = correct_axis(px0[i], vx0[i], ax[i], dt)
+        py[i], vy[i] = correct_axis(py0[i], vy0[i], ay[i], dt)
         if dim == 3:
-            v = vz0[i] + dt * az[i]
-            pz[i] += hd * v
-            vz[i] = v
+            pz[i], vz[i] = correct_axis(pz0[i], vz0[i], az[i], dt)
         rho[i] = r
     else:
-        rho[i] = r if r > rho_ref else rho_ref
+        rho[i] = bound_density(r, rho_ref)

@@ -25,19 +25,23 @@ from sphgraph.physics.shifting import clamp, shift_pair, shift_scale
 
 from . import cuda_kernels as CK
 from .base import SHIFT_PARTS
+from .cuda_halo import DeviceEdge
 
 NOBOUND, NOFIXED = 1, 2   # mode ids = index in sphgraph.config.SHIFTINGS
 
 
 # ------------------------------------------------------------------------------- kernels
 def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
-                 srx, sry, srz, srho, skind, start, split,
+                 srx, sry, srz, srho, skind, sst, oy, oz, orho, start, split,
                  o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
                  prm, dim, kernel_id, mode, gx_, gy_, gz_, div_, cancel_):
     """As cpu_shifting.shift_sums for fluid row i: cells found from the float64 position
     (dpx..), distances from the run-type positions relative to the rank's reference
-    (drx_.., srx..). `split` > 0: a kind-split grid (the rank's own rows: fluid cells,
-    then boundary cells from start[split]); 0: a plain grid (halos, images)."""
+    (drx_.., srx..). `split` > 0: a kind-split grid (the rank's own rows, an ipc halo:
+    fluid cells, then boundary cells from start[split]); 0: a plain grid (staged halos,
+    images). Source j's x is srx[sst j], y sry[sst j + oy], z srz[sst j + oz], density
+    srho[sst j + orho]: separate arrays (sst 1, offsets 0) or the records of an ipc halo
+    (pos4 = x, y, z, p and vel4 = vx, vy, vz, rho: sst 4)."""
     i = cuda.grid(1)
     if i >= n:
         return
@@ -64,9 +68,10 @@ def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
                     for s in range(nsets):
                         off = s * split
                         for j in range(start[off + row + lo0], start[off + row + hi0 + 1]):
-                            drx = xa - srx[j]
-                            dry = ya - sry[j]
-                            drz = (za - srz[j]) if dim == 3 else zero
+                            q = sst * j
+                            drx = xa - srx[q]
+                            dry = ya - sry[q + oy]
+                            drz = (za - srz[q + oz]) if dim == 3 else zero
                             r2 = drx * drx + dry * dry + drz * drz
                             if r2 > support2 or r2 < 1e-18:
                                 continue
@@ -74,7 +79,7 @@ def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
                             if kb != 0 and (mode == NOBOUND or (mode == NOFIXED and kb == FIXED)):
                                 cc = 1
                                 continue
-                            fx, fy, fz, fd = shift_pair(drx, dry, drz, r2, (mb if kb != 0 else mf) / srho[j],
+                            fx, fy, fz, fd = shift_pair(drx, dry, drz, r2, (mb if kb != 0 else mf) / srho[q + orho],
                                                         prm, kernel_id)
                             gx += fx
                             gy += fy
@@ -170,17 +175,27 @@ class CudaShifting:
         A = dv.A()
         if part == "interior":
             g = dv.grid
-            src = (A["rx"], A["ry"], A["rz"], A["rho"], A["kind"])
+            src = (A["rx"], A["ry"], A["rz"], A["rho"], A["kind"], 1, 0, 0, 0)
             start, split = A["start"], int(g["ncells"])
             origin, inv, dims, axes, reach = g["origin"], g["inv"], g["dims"], g["axes"], g["reach"]
         else:
             halo = state.halos.get(int(part[-1]))
-            if halo is None or halo.cells is None:   # empty halo: contributes nothing
-                return
-            hd, gr = halo.press, halo.cells
-            src = (hd["rx"], hd["ry"], hd["rz"], hd["rho"], hd["kind"])
-            start, split = hd["start"], 0
-            origin, inv, dims, axes, reach = gr.origin, 1.0 / gr.size, gr.dims, gr.axes, gr.reach
+            if isinstance(halo, DeviceEdge):   # ipc: the sender's sorted rows, its kind-split grid
+                if halo.views is None:         # empty halo: contributes nothing
+                    return
+                v = halo.views
+                src = (v["pos4"], v["pos4"], v["pos4"], v["vel4"], v["kind"], 4, 1, 2, 3)
+                start, split = v["start"], int(halo.ncells)
+                g = dv.grid
+                origin, inv, dims, axes = halo.origin, 1.0 / halo.size, halo.dims, g["axes"]
+                reach = g["reach"] + (1 if halo.moved > 0 else 0)   # rows moved since the sender's sort
+            else:
+                if halo is None or halo.cells is None:   # empty halo: contributes nothing
+                    return
+                hd, gr = halo.press, halo.cells
+                src = (hd["rx"], hd["ry"], hd["rz"], hd["rho"], hd["kind"], 1, 0, 0, 0)
+                start, split = hd["start"], 0
+                origin, inv, dims, axes, reach = gr.origin, 1.0 / gr.size, gr.dims, gr.axes, gr.reach
         out = self._shift_bufs(dv, part)
         if n:
             self._on(state, build(dv.dtype)).k_shift_sums[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](

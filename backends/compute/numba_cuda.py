@@ -1164,7 +1164,7 @@ class NumbaCUDA(ComputeBackend):
                        "cancel": dev_array(m, np.int8)}
                 dv.parts[part] = buf
             out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
-        dfa = CD.ddk_out(state, dv, part, final)      # K_a out (the DuFort-Frankel step), else ()
+        dfa = CD.ddk_out(self, state, dv, part, final)      # K_a out (the DuFort-Frankel step), else ()
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
@@ -1255,7 +1255,7 @@ class NumbaCUDA(ComputeBackend):
                 ft(pad), ft(tpad), int(halo.dims[0]), int(halo.dims[1]), int(halo.dims[2]),
                 int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
                 buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
-        dfa = CD.ddk_out(state, dv, part, False)
+        dfa = CD.ddk_out(self, state, dv, part, False)
         kf = self._on(state, (CD.halo_force_kernels if dfa else CR.halo_force_kernels if CR.enabled(state)
                               else HK.force_kernels)(
             dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
@@ -1342,6 +1342,18 @@ class NumbaCUDA(ComputeBackend):
         c = state.consts
         return dt_from_terms(a2, v2, vm, c.h, c.c0, state.cfl)
 
+    @staticmethod
+    def _stage_start(dv):
+        """The Symplectic stage-start float64 positions (px0, py0, pz0) of the rows'
+        capacity: written by the predictor, read by the corrector of the same step (no
+        sort or migration between them), allocated on first use."""
+        A = dv.arrays
+        m = max(dv.n, dv.cap, 1)
+        if "px0" not in A or A["px0"].shape[0] < m:
+            for ax in "xyz":
+                A["p" + ax + "0"] = dev_array(m if (ax != "z" or dv.dim == 3) else 1, np.float64)
+        return A["px0"], A["py0"], A["pz0"]
+
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         dv = state.extra["dev"]
         k = self._k(state)
@@ -1354,16 +1366,17 @@ class NumbaCUDA(ComputeBackend):
         if n:
             b = CK.blocks(n)
             if integrator == "verlet":
-                va = (A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"], A["vmx"], A["vmy"], A["vmz"],
-                      A["rhom"], A["kind"], A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, bool(euler), rho0)
-                if CD.enabled(state):
-                    CD.verlet(self, state, dv, va)
-                else:
-                    k.k_verlet[b, CK.BLOCK](*va)
+                dk = CD.ddk_in(state, dv)          # K_a of the DuFort-Frankel step, else None
+                k.k_verlet[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
+                                        A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
+                                        A["ax"], A["ay"], A["az"], A["ar"], A["ar"] if dk is None else dk, n, dim,
+                                        dt, bool(euler), rho0, dk is not None)
             else:
-                # Symplectic stage-start velocity and density reuse the Verlet history slots
+                # Symplectic stage-start velocity and density reuse the Verlet history slots;
+                # the stage-start positions live only from the predictor to the corrector
+                p0 = self._stage_start(dv)
                 kern = k.k_sym_predict if stage == 1 else k.k_sym_correct
-                kern[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
+                kern[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"], *p0,
                                   A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
                                   A["ax"], A["ay"], A["az"], A["ar"], n, dim, dt, rho0)
             # how far a row may have moved since the sort (k_forces_fv's trim slack): the

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from .kinds import FIRST_STAGE_ONLY, NEEDS_NEIGHBOUR, TaskKind as K
 from .task import Message, Task
+from ..wire import payload_nbytes
 
 # tags: one per (message type, stage, direction) so MPI's non-overtaking rule is never needed
 TAG_DISPLACED = 1
@@ -153,6 +154,7 @@ def run_send_displaced(ctx, task):
     ctx.state.cells_step = None      # the rows change: any cells built before are stale
     out = ctx.compute.take_displaced(ctx.state, ctx.domain)
     for m, d in zip(task.sends, task.meta["dirs"]):
+        ctx.state.bytes_sent += payload_nbytes(out[d])   # the edges count theirs as they are packed
         ctx.comm.isend(ctx.rank + m.peer, m.tag, out[d])
 
 

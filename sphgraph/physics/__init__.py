@@ -24,8 +24,23 @@ def source_hash() -> str:
     return h.hexdigest()[:16]
 
 
+def _cache_dirs(kernel_file: str) -> list:
+    """Where numba keeps `kernel_file`'s cache: its __pycache__, or under NUMBA_CACHE_DIR
+    (numba's user-provided locator: the source folder's name and a hash of its path)."""
+    from numba.core import config
+    from numba.core.caching import _CacheLocator
+    out = [os.path.join(os.path.dirname(kernel_file), "__pycache__")]
+    if config.CACHE_DIR:
+        out.insert(0, os.path.join(config.CACHE_DIR, _CacheLocator.get_suitable_cache_subpath(kernel_file)))
+    return out
+
+
 def drop_stale_cache(kernel_file: str) -> None:
-    cache = os.path.join(os.path.dirname(kernel_file), "__pycache__")
+    for cache in _cache_dirs(kernel_file):
+        _drop_stale(cache, kernel_file)
+
+
+def _drop_stale(cache: str, kernel_file: str) -> None:
     stem = os.path.splitext(os.path.basename(kernel_file))[0]
     stamp = os.path.join(cache, f"{stem}.physics-hash")
     want = source_hash()

@@ -184,15 +184,6 @@ def fluid_pair_df(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a
 
 
 @njit(inline="always", cache=True)
-def dufort_frankel_rho(rho_m1, rho, ar, k, dt):
-    """Verlet's density of a row with the DuFort-Frankel diffusion step (module docstring):
-    (rho^{n-1} (1 - dt K_a) + 2 dt (ar^n + K_a rho^n)) / (1 + dt K_a); K_a = 0 gives the
-    leapfrog's rho^{n-1} + 2 dt ar^n to the bit."""
-    kd = dt * k
-    return (rho_m1 * (1.0 - kd) + (2.0 * dt) * (ar + k * rho)) / (1.0 + kd)
-
-
-@njit(inline="always", cache=True)
 def bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, mass_b, prm, kernel):
     """Contribution of fluid particle b to boundary particle a (DBC): continuity only.
 
