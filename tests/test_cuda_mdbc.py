@@ -2,8 +2,8 @@
 against numba-cpu (cpu_mdbc), one rank.
 
 As tests/test_cuda_backend.py: the kernels run in numba's CUDA simulator in a subprocess
-(`NUMBA_ENABLE_CUDASIM=1`, float64, 322 particles of a 2D tank with 2 boundary layers, a
-hydrostatic start, 2 steps); the `gpu` test runs on a real GPU. The `dbc` entry is how far
+(`NUMBA_ENABLE_CUDASIM=1`, float64, a 2D tank of 322 and a 3D one of 790 particles with 2
+boundary layers, a hydrostatic start, 2 steps); the `gpu` test runs on a real GPU. The `dbc` entry is how far
 numba-cpu's mDBC run is from its DBC one (2.7 kg/m^3): far above the tolerance.
 """
 from __future__ import annotations
@@ -97,11 +97,12 @@ def _check(r, tol=1e-9):
     assert r["dbc"] > 1e-2, r
 
 
-@pytest.mark.parametrize("boundary,integrator", [("mdbc", "verlet"), ("mdbc-noslip", "symplectic")])
-def test_simulator_mdbc_matches_cpu(boundary, integrator):
-    """Measured: densities 1e-13 (Verlet) and 9e-13 kg/m^3 (Symplectic, no-slip) apart,
-    velocities 1e-14 m/s, positions 6e-17 of the domain."""
-    r = _run(SCRIPT + f"\nprint(json.dumps(compare(2, 2, {boundary!r}, {integrator!r})))", sim=True)
+@pytest.mark.parametrize("dim,boundary,integrator", [(2, "mdbc", "verlet"), (2, "mdbc-noslip", "symplectic"),
+                                                      (3, "mdbc-noslip", "verlet")])
+def test_simulator_mdbc_matches_cpu(dim, boundary, integrator):
+    """Measured (2D): densities 1e-13 (Verlet) and 9e-13 kg/m^3 (Symplectic, no-slip) apart,
+    velocities 1e-14 m/s, positions 6e-17 of the domain. 3D: a tank of 790 particles."""
+    r = _run(SCRIPT + f"\nprint(json.dumps(compare({dim}, 2, {boundary!r}, {integrator!r})))", sim=True)
     _check(r)
 
 

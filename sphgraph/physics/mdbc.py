@@ -138,15 +138,18 @@ def ghost_add(A, b, vs, dx0, dx1, dx2, r2, rho_j, vx, vy, vz, m, dim, prm, kerne
 @njit(inline="always", cache=True)
 def solve_small(A, b, n):
     """Gaussian elimination with partial pivoting on the leading n x n block of A (b becomes
-    the solution); False if singular."""
+    the solution). Returns the block's determinant (the pivots' product, signed by the row
+    swaps), 0 if singular."""
+    det = 1.0 + 0.0 * b[0]
     for c in range(n):
         p = c
         for r in range(c + 1, n):
             if abs(A[r, c]) > abs(A[p, c]):
                 p = r
         if abs(A[p, c]) < 1e-300:
-            return False
+            return 0.0 * det
         if p != c:
+            det = -det
             for k in range(n):
                 t = A[c, k]
                 A[c, k] = A[p, k]
@@ -154,6 +157,7 @@ def solve_small(A, b, n):
             t = b[c]
             b[c] = b[p]
             b[p] = t
+        det *= A[c, c]
         for r in range(c + 1, n):
             f = A[r, c] / A[c, c]
             for k in range(c, n):
@@ -164,15 +168,17 @@ def solve_small(A, b, n):
         for k in range(c + 1, n):
             s -= A[c, k] * b[k]
         b[c] = s / A[c, c]
-    return True
+    return det
 
 
 @njit(inline="always", cache=True)
 def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
     """The boundary row's density and velocity from its ghost's sums (ghost_add; A2, b2:
     scratch of A's and b's shape; x_b - x_g = bx): rho_g + (x_b - x_g) . grad rho_g, Shepard's
-    rho_g where the matrix is singular (2D: |det| < det_min, DualSPHysics' threshold), rho0
-    with no fluid in reach; at least rho0. Velocity -vs / sw with `noslip`, else 0."""
+    rho_g where the matrix is near singular (|det| < det_min, DualSPHysics' threshold, in 2D
+    and 3D: without it a 3D ghost with a few fluid rows at the edge of its support took
+    densities of 1e20 and the first step's dt 1e-31), rho0 with no fluid in reach; at least
+    rho0. Velocity -vs / sw with `noslip`, else 0."""
     rho0 = prm[P_RHO0]
     zero = 0.0 * sw
     if sw <= 0.0:
@@ -188,7 +194,8 @@ def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
                + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
         det_ok = abs(det) >= det_min
     r = b[0] / A[0, 0]
-    if det_ok and solve_small(A2, b2, n):
+    det = solve_small(A2, b2, n) if det_ok else 0.0 * sw     # 0: singular (2D: tested above)
+    if det != 0.0 and (dim == 2 or abs(det) >= det_min):
         r = b2[0] + bx0 * b2[1] + bx1 * b2[2]
         if dim == 3:
             r += bx2 * b2[3]
