@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 H100_MIB = 81559              # an H100 SXM 80GB's device memory as cuMemGetInfo counts it
-MAX_PARTICLES = 2 ** 31 - 2   # the device's 32-bit ids (numba_cuda.prepare)
+MAX_PARTICLES = 2 ** 31 - 2   # the device's 32-bit ids (cuda_upload.prepare)
 FIXED_BYTES = 32 << 20        # device memory beyond the arrays (21.5 MB measured at 4.4 M: gpu_memory.py)
 CONTEXT_BYTES = 1 << 30       # what a plan allows for the CUDA context (the run measures it)
 
@@ -59,7 +59,7 @@ def host_peak_bytes():
 def device_bytes(sc, precision="float32"):
     """Device bytes a single-rank numba-cuda run of scene `sc` holds at its peak, without the
     CUDA context: the backend's arrays after prepare, fit_fluid and build_cells
-    (numba_cuda.DeviceState) -- per row float64 positions, history velocity and density,
+    (cuda_memory.DeviceState) -- per row float64 positions, history velocity and density,
     the (v, rho) and (r, p) records, kind, 32-bit id and `ar`; reduced accelerations per
     fluid row; two int32 cell starts per cell (kind-split keys, 5 % spare) over the rows'
     bounding box -- plus FIXED_BYTES. Within 0.02 B per particle of the H200's state bytes

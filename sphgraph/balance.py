@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
-from .particles import FLUID
 
 POLICIES = ("particles", "time", "memory")
 CAP_SLACK = 0.01     # memory: plan loads this fraction under the caps (see Balancer._within_caps)
@@ -237,8 +236,7 @@ class Balancer:
         dom = ctx.domain
         be = ctx.compute
         n_own = be.fluid_count(st)
-        n_halo = sum(int(h.n_fluid) if getattr(h, "n_fluid", None) is not None    # a device halo (ipc)
-                     else int(np.count_nonzero(h.kind == FLUID)) for h in st.halos.values() if h is not None)
+        n_halo = sum(int(h.n_fluid) for h in st.halos.values() if h is not None)
         steps = max(self.steps_since.get(ctx.rank, self.cfg.every), 1)
         fsec = self.force_s.pop(ctx.rank, 0.0) / steps
         self.steps_since[ctx.rank] = self.cfg.every

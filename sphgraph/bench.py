@@ -33,11 +33,11 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
         sim.step()
     sim.scheduler.times.clear()
     first = sim.step_count
-    sim.comm.barrier() if hasattr(sim.comm, "barrier") else None
+    sim.comm.barrier()
     t0 = time.perf_counter()
     for _ in range(steps):
         sim.step()
-    sim.comm.barrier() if hasattr(sim.comm, "barrier") else None
+    sim.comm.barrier()
     wall = time.perf_counter() - t0
     pairs = sum(sim.compute.count_pairs(c.state) for c in sim.contexts)
     pairs = sim.comm.allreduce(pairs, "sum") if sim.nranks > 1 else pairs

@@ -341,9 +341,8 @@ def save(sim, out_dir, *, next_out: float, frames: int, last_saved: int, next_ch
                 "written_unix": time.time()}
         write(path, meta, blocks, cuts, fsync=fsync, exclusions=exclusions)
         prune(out_dir, keep=KEEP)
-    barrier = getattr(sim.comm, "barrier", None)
-    if barrier is not None and len(sim.comm.local_ranks) < sim.nranks:
-        barrier()   # the file is complete before any rank goes on (a stop exits right after)
+    if len(sim.comm.local_ranks) < sim.nranks:
+        sim.comm.barrier()   # the file is complete before any rank goes on (a stop exits right after)
     return path
 
 

@@ -95,9 +95,8 @@ class Invariants:
         msg = None
         if arrays is not None:
             msg = self._frame_problem(arrays["id"])
-        bcast = getattr(sim.comm, "bcast", None)
-        if bcast is not None and len(sim.comm.local_ranks) < sim.nranks:
-            msg = bcast(msg)
+        if len(sim.comm.local_ranks) < sim.nranks:
+            msg = sim.comm.bcast(msg)
         if msg is not None:
             text, pid = msg
             raise NumericalError(f"step {sim.step_count} (t = {sim.time:.6g} s): invariant violated: {text}",

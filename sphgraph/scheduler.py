@@ -130,7 +130,7 @@ class Scheduler:
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
-        lanes = bool(contexts) and getattr(contexts[0].compute, "uses_lanes", False)
+        lanes = bool(contexts) and contexts[0].compute.uses_lanes
 
         def program(rank, reb):
             prog = schedule.program(rank, comm.size, stages, user_tasks, reb, motion, ring)

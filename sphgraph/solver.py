@@ -250,7 +250,7 @@ class Simulation:
             if bad is not None and found is None:
                 row, cause = bad
                 found = (c.rank, int(c.state.particles.id[row]), cause)
-        found = self.comm.first_problem(found) if hasattr(self.comm, "first_problem") else found
+        found = self.comm.first_problem(found)
         if found is not None:
             rank, pid, cause = found
             where = f" on rank {rank}" if self.nranks > 1 else ""
@@ -521,7 +521,7 @@ def _keep_exclusions(out_dir, sim, step) -> None:
 
 def _write_timing(writer, sim) -> None:
     cols = sim.scheduler.times.columns()
-    if len(sim.comm.local_ranks) < sim.nranks and hasattr(sim.comm, "gather"):
+    if len(sim.comm.local_ranks) < sim.nranks:
         parts = sim.comm.gather(cols)    # MPI: every rank's /timing rows to the root
         if parts is not None:
             cols = {k: np.concatenate([p[k] for p in parts]) for k in cols}

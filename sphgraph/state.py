@@ -33,6 +33,11 @@ class Halo:
     def n(self) -> int:
         return int(self.rho.shape[0])
 
+    @property
+    def n_fluid(self) -> int:
+        """Fluid rows (a device halo says the same of its rows: cuda_halo.DeviceEdge)."""
+        return int(np.count_nonzero(self.kind == 0))
+
     def nbytes(self) -> int:
         return self.pos.nbytes + self.vel.nbytes + self.rho.nbytes + self.kind.nbytes
 

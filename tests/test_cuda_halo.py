@@ -40,7 +40,7 @@ IPC_SIM = SCENES + textwrap.dedent('''
                 g.step()
             got[tr] = rows_by_id(g)
             kinds[tr] = [dict(c.state.extra.get("bytes_by_kind", {})) for c in g.contexts]
-            edges[tr] = [len(c.state.extra["dev"].__dict__.get("edge_slots", {})) for c in g.contexts]
+            edges[tr] = [len(c.state.extra["dev"].edge_slots) for c in g.contexts]
             sorts[tr] = [c.state.extra["dev"].sort_gen for c in g.contexts]
         ext = float(np.max(sc.domain_max - sc.domain_min))
         c0, c1 = g.contexts[0], g.contexts[1]

@@ -68,7 +68,7 @@ SCRIPT = SCENES + textwrap.dedent('''
 ''')
 
 COSTS = SCRIPT + textwrap.dedent('''
-    from sphgraph.backends.compute import numba_cuda as NC
+    from sphgraph.backends.compute import cuda_memory as NC
 
     def costs(ranks, steps, warm=2):
         """Device allocations and host waits per rank-step after `warm` steps (mock, ipc)."""

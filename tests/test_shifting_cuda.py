@@ -2,8 +2,7 @@
 
 As tests/test_cuda_backend.py: the kernels run in numba's CUDA simulator in a subprocess
 (`NUMBA_ENABLE_CUDASIM=1`, float64, 64-200 particles, 2 steps of fixed dt); the `gpu` test runs on a
-real GPU. Until numba_cuda.NumbaCUDA inherits `CudaShifting`, the scripts use a subclass
-that does (the same methods).
+real GPU.
 """
 from __future__ import annotations
 
@@ -20,9 +19,7 @@ SCRIPT = textwrap.dedent('''
     import numpy as np
     from sphgraph.scene import Scene
     from sphgraph.solver import Simulation
-    from sphgraph.backends.compute.numba_cuda import NumbaCUDA
-    from sphgraph.backends.compute.cuda_shifting import CudaShifting
-    CUDA = NumbaCUDA if issubclass(NumbaCUDA, CudaShifting) else type("NumbaCUDA", (CudaShifting, NumbaCUDA), {})
+    from sphgraph.backends.compute.numba_cuda import NumbaCUDA as CUDA
 
     def scene(dim, mode, dp, extra=None):
         if dim == 2:

@@ -1,4 +1,4 @@
-"""The numba-cuda upload (numba_cuda.prepare): its host kernels (upload_kernels) give numpy's
+"""The numba-cuda upload (cuda_upload.prepare): its host kernels (upload_kernels) give numpy's
 values to the bit, and a chunked upload through the staging buffer puts the same rows on the
 device as one chunk (CUDA simulator)."""
 import json
@@ -52,7 +52,7 @@ CHUNKS = textwrap.dedent('''
     import json, numpy as np
     from sphgraph.scene import Scene
     from sphgraph.solver import Simulation
-    from sphgraph.backends.compute import numba_cuda as NC
+    from sphgraph.backends.compute import cuda_upload as NC
     d = {"format": 1, "name": "u3", "dim": DIM, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
          "domain": {"min": [-0.2] * DIM, "max": [0.6] * DIM},
          "fluid": [{"type": "box", "min": [0.0] * DIM, "max": [0.15] * DIM}],

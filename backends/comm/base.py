@@ -57,8 +57,21 @@ class CommBackend:
     def allreduce(self, value, op):
         raise NotImplementedError
 
+    def gather(self, obj) -> list | None:
+        """Every rank's `obj` on the root in rank order (None elsewhere). One rank a
+        process (the default: one rank in all) is the only case that needs it."""
+        return [obj]
+
     def bcast(self, obj):
         return obj
+
+    def barrier(self) -> None:
+        """Wait until every rank's process gets here (nothing to wait for in one process)."""
+
+    def first_problem(self, found):
+        """The lowest rank's end-of-step problem (or None), the same on every rank;
+        `found` is this process's first. One process holds every rank by default."""
+        return found
 
     def abort(self, code: int) -> None:
         pass

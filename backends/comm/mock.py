@@ -442,9 +442,6 @@ class MockComm(CommBackend):
     def allreduce(self, value, op):
         return value      # every rank is local: the caller's value is already global
 
-    def barrier(self):
-        pass
-
     def clock(self) -> float:
         return max(self.engine.clock)
 

@@ -16,6 +16,7 @@ class ComputeBackend:
     name = "base"
     default_precision = "float64"
     device_resident = False   # rows live on a device between steps (halos can go device to device)
+    uses_lanes = False        # tasks run on lanes (numba-cuda: a CUDA stream each; sphgraph.scheduler)
 
     @classmethod
     def unavailable(cls) -> str | None:

@@ -32,6 +32,7 @@ from . import cuda_forces as CF
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from .cuda_forces import _row_cut, _store_fluid, _trimmed, _warp_max_into, _window  # noqa: F401
+from .cuda_memory import dev_array
 from .cuda_retarget import SIMULATOR, _clone, at, load4  # noqa: F401
 
 RT = np.float64
@@ -372,7 +373,7 @@ def halo_force_kernels(dtype, prm, kernel_id, ddt_kind, laminar) -> types.Simple
 def _ddk_array(dv, m, name="ddk"):
     a = dv.arrays.get(name)
     if a is None or a.shape[0] < m:
-        a = dv.arrays[name] = cuda.device_array(m, dv.dtype)
+        a = dv.arrays[name] = dev_array(m, dv.dtype)
     return a
 
 
@@ -396,7 +397,7 @@ def ddk_out(be, state, dv, part, final) -> tuple:
     buf = dv.parts[part]
     a = buf.get("ddk")
     if a is None or a.shape[0] < buf["ar"].shape[0]:
-        a = buf["ddk"] = cuda.device_array(buf["ar"].shape[0], dv.dtype)
+        a = buf["ddk"] = dev_array(buf["ar"].shape[0], dv.dtype)
     return (a,)
 
 

@@ -53,7 +53,7 @@ def k_edge_init(head, meta):
 
 def k_edge_bounds(pos, kind, m, dim, axis, thr, below, meta):
     """The rows of a received edge (pos: m records of dim float64, as k_pack_edge) that pass
-    its cut (coordinate `axis` < thr when `below`, else >= thr: numba_cuda.edge's cut):
+    its cut (coordinate `axis` < thr when `below`, else >= thr: cuda_rows.edge's cut):
     how many, how many fluid, and their bounding box (0 along a missing z), into meta
     (set by k_edge_init; one atomic per block and quantity)."""
     sh = cuda.shared.array((8, 256), dtype=np.float64)

@@ -517,7 +517,7 @@ def compile_forces(fluid, boundary, dtype, prm, kernel_id, ddt_kind, laminar, fa
     `dtype`, PRMC: constant memory, or folded into the instructions) and the options (KID,
     DDTK, LAM) are compile-time constants, so the branches of unused options (cubic kernel,
     Molteni, laminar) are not compiled and the parameters take no registers. `relative`
-    says which arguments the kernels take (numba_cuda: k_forces_fv's); `extra`: more
+    says which arguments the kernels take (cuda_force_dispatch: k_forces_fv's); `extra`: more
     globals of the kernels (benchmarks' variants of their device functions)."""
     memo = {}
     consts = {"PRMC": prm, "KID": int(kernel_id), "DDTK": int(ddt_kind), "LAM": int(laminar), **(extra or {})}

@@ -33,13 +33,14 @@ import copy
 import pickle
 
 import numpy as np
-from numba import cuda
 
 from sphgraph.errors import CommError
 from sphgraph.wire import WirePayload, codec
 
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
+from .cuda_lanes import new_event
+from .cuda_memory import COUNTERS, VEC, count_bytes, dev_array, host_wait, pinned_array, split
 
 _WIRE = 2            # layout version of DeviceEdge.to_wire
 _HEAD = 20           # int64 words before the pickled IPC handle
@@ -84,7 +85,6 @@ class DeviceEdge(WirePayload):
         """The message between processes: int64 header, then the pickled handle when this
         buffer goes to `dest` for the first time. The host waits for the pack first."""
         if self.event is not None:
-            from .numba_cuda import COUNTERS
             COUNTERS["host_wait"] += 1
             self.event.synchronize()
         o = self._owner
@@ -160,8 +160,7 @@ def edge_ranges(be, state, dv, domain):
     wait. Without them (the first sort, moved cuts) the ranges come to the host once
     (one wait) and are their own bounds. Kept per sort for the other edge, the halo
     forces and the second stage."""
-    from .numba_cuda import _count, _wait, dev_array, pinned_array
-    got = dv.__dict__.get("edge_ranges")
+    got = dv.edge_ranges
     if got is not None and got[0] == dv.sort_gen and got[1] == (domain.lo, domain.hi):
         return got[2]
     g = dv.grid
@@ -182,22 +181,22 @@ def edge_ranges(be, state, dv, domain):
     A = dv.arrays
     if "pick8" not in A:
         A["pick8"] = dev_array(8, np.int32)
-        dv.__dict__["pinned_i8"] = pinned_array(8, np.int32)
+        dv.pinned_i8 = pinned_array(8, np.int32)
     s = be._s(state)
     hk = be._on(state, HK.build(dv.dtype))
     hk.k_pick8[1, 1](A["start"], *idx, A["pick8"])
-    bound = dv.__dict__.get("edge_bound")
+    bound = dv.edge_bound
     if bound is not None and bound[0] == (domain.lo, domain.hi, domain.reach):
         out = {d: (planes[d][0], planes[d][1], *bound[1][d]) for d in planes}
     else:
-        h = dv.__dict__["pinned_i8"]
+        h = dv.pinned_i8
         A["pick8"].copy_to_host(h, stream=s)
-        _wait(s)
-        _count(state, "d2h_bytes", "edge", 32)
+        host_wait(s)
+        count_bytes(state, "d2h_bytes", "edge", 32)
         v = [int(x) for x in h]
         out = {d: (planes[d][0], planes[d][1], v[4 * k + 1] - v[4 * k], v[4 * k + 3] - v[4 * k + 2])
                for k, d in enumerate((-1, 1)) if d in planes}
-    dv.__dict__["edge_ranges"] = (dv.sort_gen, (domain.lo, domain.hi), out)
+    dv.edge_ranges = (dv.sort_gen, (domain.lo, domain.hi), out)
     return out
 
 
@@ -206,63 +205,61 @@ def band_counts(be, state, dv, k):
     sort's edges can hold -- every row within reach of a cut plus three cells -- into
     `band` (fluid, boundary below the lower cut's band; the same above the upper one),
     copied with the check's own results (no wait of its own). `take_band` reads it."""
-    from .numba_cuda import _VEC, dev_array, pinned_array
-    dom = dv.__dict__.get("domain")
+    dom = dv.domain
     if dom is None or not dv.n:
         return False
     A = dv.arrays
     if "band" not in A:
         A["band"] = dev_array(4, np.int32)
-        dv.__dict__["pinned_band"] = pinned_array(4, np.int32)
+        dv.pinned_band = pinned_array(4, np.int32)
     c = state.consts
     wide = dom.reach + 3.0 * c.cell_size
     tlo = dom.lo + wide if np.isfinite(dom.lo) else -np.inf
     thi = dom.hi - wide if np.isfinite(dom.hi) else np.inf
     k.k_fill[1, 32](A["band"], 4, 0)
     be._on(state, HK.build(dv.dtype)).k_band_counts[CK.blocks(dv.n), CK.BLOCK](
-        A["p" + _VEC[dom.axis]], A["kind"], dv.n, float(tlo), float(thi), A["band"])
-    A["band"].copy_to_host(dv.__dict__["pinned_band"], stream=be._s(state))
-    dv.__dict__["band_for"] = (dom.lo, dom.hi, dom.reach)
+        A["p" + VEC[dom.axis]], A["kind"], dv.n, float(tlo), float(thi), A["band"])
+    A["band"].copy_to_host(dv.pinned_band, stream=be._s(state))
+    dv.band_for = (dom.lo, dom.hi, dom.reach)
     return True
 
 
 def take_band(dv) -> None:
     """After the check's wait: the counts become the next sort's edge bounds (1 % and 256
     rows of slack on top of the three cells)."""
-    h = dv.__dict__["pinned_band"]
+    h = dv.pinned_band
     f_lo, b_lo, f_hi, b_hi = (int(x) for x in h)
     pad = lambda m: m + m // 100 + 256   # noqa: E731
-    dv.__dict__["edge_bound"] = (dv.__dict__["band_for"], {-1: (pad(f_lo), pad(b_lo)), 1: (pad(f_hi), pad(b_hi))})
+    dv.edge_bound = (dv.band_for, {-1: (pad(f_lo), pad(b_lo)), 1: (pad(f_hi), pad(b_hi))})
 
 
 def grow_bounds(dv, m_fluid, m_bound) -> None:
     """Rows arrived after the check: each edge may hold them all."""
-    b = dv.__dict__.get("edge_bound")
+    b = dv.edge_bound
     if b is not None:
-        dv.__dict__["edge_bound"] = (b[0], {d: (f + m_fluid, bb + m_bound) for d, (f, bb) in b[1].items()})
+        dv.edge_bound = (b[0], {d: (f + m_fluid, bb + m_bound) for d, (f, bb) in b[1].items()})
 
 
 def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
     """The edge towards `direction` packed into this rank's buffer for `slot` (the message
     tag), an event recorded after it; no host wait. The slot's layout is by the row bound:
     the true count is on the device, in the packed cell starts."""
-    from .numba_cuda import _event, _split, dev_array
     c0, npl, fb, bb = edge_ranges(be, state, dv, domain)[direction]
     cap = fb + bb
     g = dv.grid
     n0, n1 = int(g["dims"][0]), int(g["dims"][1])
     nch = n0 * n1 * npl
     lay, nb = edge_layout(cap, nch, dv.dtype)
-    slots = dv.__dict__.setdefault("edge_slots", {})
+    slots = dv.edge_slots
     e = slots.get(slot)
     if e is None or e["buf"].shape[0] < nb:
         old = e
         e = {"buf": dev_array(int(nb * 1.5) + 4096, np.uint8), "version": 0 if old is None else
              old["version"] + 1, "gen": 0 if old is None else old["gen"], "sent": set(), "handle": None,
-             "event": _event(False), "retired": [] if old is None else old["retired"] + [old["buf"]]}
+             "event": new_event(False), "retired": [] if old is None else old["retired"] + [old["buf"]]}
         slots[slot] = e
     e["gen"] += 1
-    d = _split(e["buf"][:nb], lay)
+    d = split(e["buf"][:nb], lay)
     A = dv.arrays
     if "edge_over" not in A:
         A["edge_over"] = dev_array(1, np.int32)
@@ -287,7 +284,7 @@ def _peer_buffer(dv, edge):
     buffer and kept (a new version closes the old mapping)."""
     if edge.array is not None:
         return edge.array
-    peers = dv.__dict__.setdefault("edge_peers", {})
+    peers = dv.edge_peers
     key = (edge.src, edge.slot)
     have = peers.get(key)
     if have is not None and have["version"] == edge.version:
@@ -306,7 +303,6 @@ def receive_edge(be, state, edge) -> None:
     """`edge` becomes the halo: its views on the sender's buffer, read after the pack
     (the receiver's stream waits for the sender's event; between processes the sender
     waited before sending, and the generation number is checked)."""
-    from .numba_cuda import _split
     dv = state.extra["dev"]
     edge._ref = dv.ref
     if edge.m == 0:
@@ -325,7 +321,7 @@ def receive_edge(be, state, edge) -> None:
             edge.event.wait()
     else:
         _check_generation(be, state, dv, edge, buf)
-    edge.views = _split(buf, lay)
+    edge.views = split(buf, lay)
     be._log(state, "halo_views", edge.slot, edge.gen)
 
 
@@ -334,9 +330,8 @@ def _check_generation(be, state, dv, edge, buf):
     rewritten before it was read is a CommError, not wrong halos). Its 8 bytes are copied
     on the receive's stream and checked after the rank's next host wait (`check_generations`,
     from dt_local): no wait of its own."""
-    from .numba_cuda import pinned_array
-    pend = dv.__dict__.setdefault("gen_pending", [])
-    pool = dv.__dict__.setdefault("gen_pinned", [])
+    pend = dv.gen_pending
+    pool = dv.gen_pinned
     while len(pool) <= len(pend):
         pool.append(pinned_array(1, np.int64))
     h = pool[len(pend)]
@@ -347,7 +342,7 @@ def _check_generation(be, state, dv, edge, buf):
 def check_generations(state, dv) -> None:
     """The generation numbers copied by `_check_generation`, after a host wait that
     followed those copies."""
-    pend = dv.__dict__.get("gen_pending")
+    pend = dv.gen_pending
     if not pend:
         return
     bad = next(((src, slot, gen, int(h[0])) for src, slot, gen, h in pend if int(h[0]) != gen), None)

@@ -147,7 +147,7 @@ def k_sort_cells_by(start, ncells, perm, key):
 
 
 def k_gather3(a, b, c, m, perm, n, sa, sb, sc):
-    """The first m (1-3) of a, b, c gathered by perm in one pass (numba_cuda._permute:
+    """The first m (1-3) of a, b, c gathered by perm in one pass (cuda_cells._permute:
     one launch and one read of perm for up to three arrays)."""
     i = cuda.grid(1)
     if i < n:

@@ -1,4 +1,4 @@
-"""Host-side numba kernels of the numba-cuda upload (`numba_cuda.prepare`): the row arrays
+"""Host-side numba kernels of the numba-cuda upload (`cuda_upload.prepare`): the row arrays
 go to the device through a reusable staging buffer a chunk of rows at a time, each chunk
 filled by all cores in the device's type and layout. Single-threaded numpy took ~0.12 s per
 million rows (column copies of the (n, dim) positions, the (v, rho) records, the casts, two
