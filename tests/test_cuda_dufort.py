@@ -9,13 +9,10 @@ DuFort-Frankel one): the two schemes then differ by ~1e-2 kg/m^3 in 3 steps (the
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
+from cudasim_helpers import check_equal, gpu, run_script
 
 SCRIPT = textwrap.dedent('''
     import json
@@ -69,44 +66,13 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-def _run(script: str, sim: bool, timeout=300):
-    env = dict(os.environ)
-    if sim:
-        env["NUMBA_ENABLE_CUDASIM"] = "1"
-    else:
-        env.pop("NUMBA_ENABLE_CUDASIM", None)
-    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-4000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
-
-
-gpu = pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
-
-
-def _check(r, tol=1e-9):
-    assert r["ids"], r
-    assert r["time"][0] == pytest.approx(r["time"][1], rel=1e-9), r
-    assert r["pos"] < tol, f"positions differ by {r['pos']:.3g} of the domain: {r}"
-    assert r["rho"] < 1e-6, f"densities differ by {r['rho']:.3g} kg/m^3: {r}"
-
-
 def test_simulator_dufort_frankel_matches_cpu_one_rank():
     """2D with the Fourtakas term (DBC neighbours cancel a row's diffusion and its K_a), 3D
     with fourtakas-full (boundary neighbours skipped): one rank, the force kernel writes the
     reduced K_a itself. Measured: densities 2e-13 to 5e-13 kg/m^3 apart, positions 0."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 3), compare(3, 2, 'fourtakas-full')]))", sim=True)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 3), compare(3, 2, 'fourtakas-full')]))", sim=True)
     for r in out:
-        _check(r)
+        check_equal(r)
         assert r["leapfrog"] > 1e-4, r
 
 
@@ -114,11 +80,11 @@ def test_simulator_dufort_frankel_matches_cpu_two_mock_ranks():
     """2 mock ranks: ipc halos (the default: k_halo_fv_df, k_reduce_ranged_ddk) and staged
     halos (host-binned: k_forces_df, k_reduce_ddk), against one CPU rank; numba-cpu on the
     same 2 ranks too. Measured: 3.4e-13 kg/m^3, 4e-18 of the domain."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 3, ranks=2), compare(2, 3, 'molteni', ranks=2, "
-                        "transport='staged')]))", sim=True)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 3, ranks=2), compare(2, 3, 'molteni', ranks=2, "
+                     "transport='staged')]))", sim=True)
     for r in out:
-        _check(r)
-        _check(r["cpu_ranks"])
+        check_equal(r)
+        check_equal(r["cpu_ranks"])
         assert r["leapfrog"] > 1e-4, r
 
 
@@ -126,7 +92,7 @@ def test_simulator_dufort_frankel_matches_cpu_two_mock_ranks():
 @gpu
 def test_gpu_dufort_frankel_matches_cpu():
     """On a real GPU, float64: one rank and 2 mock ranks (ipc) against one CPU rank."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(3, 5, 'fourtakas-full'), "
-                        "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(3, 5, 'fourtakas-full'), "
+                     "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
     for r in out:
-        _check(r)
+        check_equal(r)

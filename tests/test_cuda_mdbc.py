@@ -8,13 +8,10 @@ numba-cpu's mDBC run is from its DBC one (2.7 kg/m^3): far above the tolerance.
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
+from cudasim_helpers import check_equal, gpu, run_script
 
 SCRIPT = textwrap.dedent('''
     import json
@@ -65,35 +62,8 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-def _run(script: str, sim: bool, timeout=300):
-    env = dict(os.environ)
-    if sim:
-        env["NUMBA_ENABLE_CUDASIM"] = "1"
-    else:
-        env.pop("NUMBA_ENABLE_CUDASIM", None)
-    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-4000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
-
-
-gpu = pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
-
-
 def _check(r, tol=1e-9):
-    assert r["ids"], r
-    assert r["time"][0] == pytest.approx(r["time"][1], rel=1e-9), r
-    assert r["pos"] < tol, f"positions differ by {r['pos']:.3g} of the domain: {r}"
-    assert r["rho"] < 1e-6, f"densities differ by {r['rho']:.3g} kg/m^3: {r}"
+    check_equal(r, tol)
     assert r["dbc"] > 1e-2, r
 
 
@@ -102,7 +72,7 @@ def _check(r, tol=1e-9):
 def test_simulator_mdbc_matches_cpu(dim, boundary, integrator):
     """Measured (2D): densities 1e-13 (Verlet) and 9e-13 kg/m^3 (Symplectic, no-slip) apart,
     velocities 1e-14 m/s, positions 6e-17 of the domain. 3D: a tank of 790 particles."""
-    r = _run(SCRIPT + f"\nprint(json.dumps(compare({dim}, 2, {boundary!r}, {integrator!r})))", sim=True)
+    r = run_script(SCRIPT + f"\nprint(json.dumps(compare({dim}, 2, {boundary!r}, {integrator!r})))", sim=True)
     _check(r)
 
 
@@ -121,7 +91,7 @@ def test_mdbc_on_several_ranks_is_refused_on_numba_cuda():
 @gpu
 def test_gpu_mdbc_matches_cpu():
     """On a real GPU, float64, 5 steps of each."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(2, 5, 'mdbc-noslip', 'symplectic')]))",
-               sim=False, timeout=600)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(2, 5, 'mdbc-noslip', 'symplectic')]))",
+                     sim=False, timeout=600)
     for r in out:
         _check(r)

@@ -8,13 +8,10 @@ default (centred pressure) one: far above the tolerance.
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
+from cudasim_helpers import check_equal, gpu, run_script
 
 SCRIPT = textwrap.dedent('''
     import json
@@ -67,54 +64,23 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-def _run(script: str, sim: bool, timeout=300):
-    env = dict(os.environ)
-    if sim:
-        env["NUMBA_ENABLE_CUDASIM"] = "1"
-    else:
-        env.pop("NUMBA_ENABLE_CUDASIM", None)
-    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-4000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
-
-
-gpu = pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
-
-
-def _check(r, tol=1e-9):
-    assert r["ids"], r
-    assert r["time"][0] == pytest.approx(r["time"][1], rel=1e-9), r
-    assert r["pos"] < tol, f"positions differ by {r['pos']:.3g} of the domain: {r}"
-    assert r["rho"] < 1e-6, f"densities differ by {r['rho']:.3g} kg/m^3: {r}"
-
-
 def test_simulator_riemann_matches_cpu_one_rank():
     """2D, and 3D with a laminar viscosity (riemann_pair keeps the laminar term): one rank, the
     force kernel writes the reduced sums itself."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 2), compare(3, 2, laminar=1e-3)]))", sim=True)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 2), compare(3, 2, laminar=1e-3)]))", sim=True)
     for r in out:
-        _check(r)
+        check_equal(r)
         assert r["centred"] > 1e-4, r
 
 
 def test_simulator_riemann_matches_cpu_two_mock_ranks():
     """2 mock ranks: ipc halos (the default) and staged halos (host-binned: k_forces), against
     one CPU rank; numba-cpu on the same 2 ranks too."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 2, ranks=2), compare(2, 2, ranks=2, transport='staged')]))",
-               sim=True)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 2, ranks=2), "
+                     "compare(2, 2, ranks=2, transport='staged')]))", sim=True)
     for r in out:
-        _check(r)
-        _check(r["cpu_ranks"])
+        check_equal(r)
+        check_equal(r["cpu_ranks"])
         assert r["centred"] > 1e-4, r
 
 
@@ -122,7 +88,7 @@ def test_simulator_riemann_matches_cpu_two_mock_ranks():
 @gpu
 def test_gpu_riemann_matches_cpu():
     """On a real GPU, float64: one rank and 2 mock ranks (ipc) against one CPU rank."""
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(3, 5, laminar=1e-3), "
-                        "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(3, 5, laminar=1e-3), "
+                     "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
     for r in out:
-        _check(r)
+        check_equal(r)
