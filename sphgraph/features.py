@@ -55,14 +55,6 @@ class Features:
         from .motion import Motion
         from .waves import Damping
         s = self.scene
-        if s.physics.riemann != "none" and sim.compute.name != "numba-cpu":
-            from .errors import InputError
-            raise InputError(f"{s.source}: physics.riemann: {s.physics.riemann!r} runs with --backend numba-cpu "
-                             f"(or use riemann = \"none\"), got {sim.compute.name}")
-        if s.physics.diffusion_time != "leapfrog" and sim.compute.name != "numba-cpu":
-            from .errors import InputError
-            raise InputError(f"{s.source}: physics.diffusion_time: {s.physics.diffusion_time!r} runs with "
-                             f"--backend numba-cpu (or use diffusion_time = \"leapfrog\"), got {sim.compute.name}")
         self.motion = Motion.from_scene(s, particles)
         self.damping = Damping.from_scene(s)
         if s.periodic:

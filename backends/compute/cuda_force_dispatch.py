@@ -7,9 +7,11 @@ import numpy as np
 
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_SUPPORT2
 
+from . import cuda_dufort as CD
 from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
+from . import cuda_riemann as CR
 
 TRIM_OFF = 1e30          # tpad that keeps every row whole (finite: fastmath assumes no inf)
 
@@ -47,14 +49,15 @@ class CudaForceDispatch:
         else:
             buf = dv.part_buffer(part, max(n, 1))
             out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
+        dfa = CD.ddk_out(self, state, dv, part, final)      # K_a out (the DuFort-Frankel step), else ()
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
         if n and part == "interior":
             g = dv.grid
             nf, FB = dv.nf, CK.FORCE_BLOCK
-            built = CK.force_kernels(dv.dtype, state.prm, int(state.opt[O_KERNEL]),
-                                     int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
+            built = (CD.force_kernels if dfa else CR.force_kernels if CR.enabled(state) else CK.force_kernels)(
+                dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
             if built.relative:
                 # cell ranges from the relative positions: origin less the reference point,
@@ -71,7 +74,7 @@ class CudaForceDispatch:
                             1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]))
                 if nf:
                     kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]),
-                                                         *rel_args, *out)
+                                                         *rel_args, *out, *dfa)
                 if n > nf:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], nf, n, start,
                                                              int(g["ncells"]), *rel_args, *out)
@@ -88,13 +91,15 @@ class CudaForceDispatch:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](
                         A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
         elif n:
-            k.k_forces[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
+            kh = (self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else
+                  self._on(state, CR.build(dv.dtype)).k_forces if CR.enabled(state) else k.k_forces)
+            kh[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
                 A["rho"], A["press"], A["kind"], n, *src,
                 start, float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                 int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                 dv.prm_d(state), dim, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]),
-                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
+                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out, *dfa)
         dv.final = final
         self._sync()
 
@@ -108,6 +113,7 @@ class CudaForceDispatch:
         k = self._k(state)
         if dv.halo_ranges and dv.n:
             self._reduce_ranged(state, dv)
+            CD.reduce(self, state, dv, True)
             self._sync()
             return
         bufs = [dv.parts[p] for p in ("interior", "halo_1", "halo_2") if p in dv.parts]
@@ -124,6 +130,7 @@ class CudaForceDispatch:
         if dv.n:
             k.k_reduce[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]),
                                                  ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"])
+        CD.reduce(self, state, dv, False)
         self._sync()
 
     def _reduce_ranged(self, state, dv) -> None:

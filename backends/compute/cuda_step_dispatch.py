@@ -7,6 +7,7 @@ import numpy as np
 
 from sphgraph.config import P_RHO0
 
+from . import cuda_dufort as CD
 from . import cuda_halo as CH
 from . import cuda_kernels as CK
 from .base import dt_from_terms
@@ -69,10 +70,11 @@ class CudaStepDispatch:
         if n:
             b = CK.blocks(n)
             if integrator == "verlet":
+                dk = CD.ddk_in(state, dv)          # K_a of the DuFort-Frankel step, else None
                 k.k_verlet[b, CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"], A["rho"],
                                         A["vmx"], A["vmy"], A["vmz"], A["rhom"], A["kind"],
-                                        A["ax"], A["ay"], A["az"], A["ar"], A["ar"], n, dim, dt, bool(euler),
-                                        rho0, False)
+                                        A["ax"], A["ay"], A["az"], A["ar"], A["ar"] if dk is None else dk, n, dim,
+                                        dt, bool(euler), rho0, dk is not None)
             else:
                 # Symplectic stage-start velocity and density reuse the Verlet history slots;
                 # the stage-start positions live only from the predictor to the corrector

@@ -172,6 +172,18 @@ def diffusion_coef(r2, fac, rho_b, mass_b, prm):
 
 
 @njit(inline="always", cache=True)
+def fluid_pair_df(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
+                  b_bound, prm, kernel, ddt_kind, laminar):
+    """`fluid_pair` and the pair's k_ab (`diffusion_coef`) for the DuFort-Frankel step: a fluid
+    b adds k_ab to K_a, a boundary b nothing (where it cancels a's diffusion, K_a is zeroed
+    with the term when the parts are summed). Returns fluid_pair's tuple, then k_ab."""
+    ax, ay, az, ar, ddt, cancel, visc = fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b,
+                                                   p_a, p_b, mass_b, b_bound, prm, kernel, ddt_kind, laminar)
+    k = 0.0 * ar if b_bound else diffusion_coef(r2, grad_factor(r2, prm, kernel), rho_b, mass_b, prm)
+    return ax, ay, az, ar, ddt, cancel, visc, k
+
+
+@njit(inline="always", cache=True)
 def bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, rho_b, mass_b, prm, kernel):
     """Contribution of fluid particle b to boundary particle a (DBC): continuity only.
 

@@ -24,7 +24,13 @@ triangle), computed automatically, nearest entry first.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
+
+from ..config import P_RHO0
+from .kernels import grad_factor, kernel_w
 
 
 def interface_boxes(scene):
@@ -97,3 +103,104 @@ def ghost_positions(pos: np.ndarray, boxes) -> np.ndarray:
         ghost[take] = g[take]
         best[take] = d[take]
     return ghost
+
+
+# ------------------------------------------------------------------ per-row maths (CPU and GPU)
+# One boundary row's corrected sums and its value, written once: backends/compute/cpu_mdbc
+# calls them with numpy arrays, cuda_mdbc's kernel (retargeted) with local arrays.
+@njit(inline="always", cache=True)
+def ghost_add(A, b, vs, dx0, dx1, dx2, r2, rho_j, vx, vy, vz, m, dim, prm, kernel):
+    """Fluid neighbour j (x_j - x_g = dx, within 2h) into the ghost's corrected sums: the
+    matrix A, the right-hand side b (module docstring) and the velocity sum vs. Returns
+    V W, its Shepard weight."""
+    w = kernel_w(math.sqrt(r2), prm, kernel)
+    f = grad_factor(r2, prm, kernel) if r2 > 1e-18 else 0.0 * r2
+    V = m / rho_j
+    # grad_g W(x_g - x_j) = F (x_g - x_j) = -F dx
+    A[0, 0] += V * w
+    b[0] += m * w
+    for d in range(dim):
+        xd = dx0 if d == 0 else (dx1 if d == 1 else dx2)
+        gd = -f * xd
+        A[0, 1 + d] += V * xd * w
+        A[1 + d, 0] += V * gd
+        b[1 + d] += m * gd
+        for e in range(dim):
+            xe = dx0 if e == 0 else (dx1 if e == 1 else dx2)
+            A[1 + d, 1 + e] += V * xe * gd
+    vs[0] += V * vx * w
+    vs[1] += V * vy * w
+    if dim == 3:
+        vs[2] += V * vz * w
+    return V * w
+
+
+@njit(inline="always", cache=True)
+def solve_small(A, b, n):
+    """Gaussian elimination with partial pivoting on the leading n x n block of A (b becomes
+    the solution). Returns the block's determinant (the pivots' product, signed by the row
+    swaps), 0 if singular."""
+    det = 1.0 + 0.0 * b[0]
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if abs(A[p, c]) < 1e-300:
+            return 0.0 * det
+        if p != c:
+            det = -det
+            for k in range(n):
+                t = A[c, k]
+                A[c, k] = A[p, k]
+                A[p, k] = t
+            t = b[c]
+            b[c] = b[p]
+            b[p] = t
+        det *= A[c, c]
+        for r in range(c + 1, n):
+            f = A[r, c] / A[c, c]
+            for k in range(c, n):
+                A[r, k] -= f * A[c, k]
+            b[r] -= f * b[c]
+    for c in range(n - 1, -1, -1):
+        s = b[c]
+        for k in range(c + 1, n):
+            s -= A[c, k] * b[k]
+        b[c] = s / A[c, c]
+    return det
+
+
+@njit(inline="always", cache=True)
+def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
+    """The boundary row's density and velocity from its ghost's sums (ghost_add; A2, b2:
+    scratch of A's and b's shape; x_b - x_g = bx): rho_g + (x_b - x_g) . grad rho_g, Shepard's
+    rho_g where the matrix is near singular (|det| < det_min, DualSPHysics' threshold, in 2D
+    and 3D: without it a 3D ghost with a few fluid rows at the edge of its support took
+    densities of 1e20 and the first step's dt 1e-31), rho0 with no fluid in reach; at least
+    rho0. Velocity -vs / sw with `noslip`, else 0."""
+    rho0 = prm[P_RHO0]
+    zero = 0.0 * sw
+    if sw <= 0.0:
+        return rho0 + zero, zero, zero, zero
+    n = dim + 1
+    for r in range(n):
+        b2[r] = b[r]
+        for c in range(n):
+            A2[r, c] = A[r, c]
+    det_ok = True
+    if dim == 2:
+        det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+               + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+        det_ok = abs(det) >= det_min
+    r = b[0] / A[0, 0]
+    det = solve_small(A2, b2, n) if det_ok else 0.0 * sw     # 0: singular (2D: tested above)
+    if det != 0.0 and (dim == 2 or abs(det) >= det_min):
+        r = b2[0] + bx0 * b2[1] + bx1 * b2[2]
+        if dim == 3:
+            r += bx2 * b2[3]
+    if r < rho0:
+        r = rho0 + zero
+    if not noslip:
+        return r, zero, zero, zero
+    return r, -vs[0] / sw, -vs[1] / sw, (-vs[2] / sw) if dim == 3 else zero
