@@ -99,13 +99,11 @@ class Simulation:
         self.rebalance = (self.nranks > 1 and self.balance_cfg.enabled
                           and "rebalance" in self.schedule.order)
         from .features import Features
-        self.features = Features(scene)  # moving bodies, damping, periodic...: only what the scene asks
-        if phys.boundary != "dbc":   # mDBC: a user task before each force stage (or one line, exit 2)
-            from .backends.compute.cpu_mdbc import attach
-            self.schedule, self.user_tasks = attach(scene, compute_cls.name, self.nranks, self.schedule,
-                                                    self.user_tasks)
+        # mDBC, periodic images, shifting, moving bodies...: only what the scene asks, as tasks
+        self.features = Features(scene)
+        self.features.check_backend(compute_cls, self.nranks)
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
-                               motion=self.features.motion_task)
+                               features=self.features.kinds)
         self.compute = compute_cls()
         # set-up seconds by phase: scene (the particle count, constants), particles (the
         # rows on the host), state (rank states and the backend's prepare: the upload on a
@@ -165,15 +163,17 @@ class Simulation:
         if self.rebalance and self.balance_cfg.policy == "memory":
             self._attach_capacity(scene)
         t0 = self._phase("state", t0)
-        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
-                                   rebalance=self.rebalance, motion=self.features.motion_task,
-                                   ring=self.features.ring(self.axis, self.nranks))
         self.lo = np.asarray(scene.domain_min, float)
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0
         self.time = 0.0
-        if self.features.active:
-            self.features.attach(self, particles)
+        self.features.attach(self, particles)   # its task kinds for the split axis now known
+        ring = self.features.ring(self.axis, self.nranks)
+        if ring:   # the end ranks are neighbours: more messages to prove
+            self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
+                                   features=self.features.kinds, ring=True)
+        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
+                                   rebalance=self.rebalance, features=self.features.kinds, ring=ring)
         from .invariants import Invariants
         self.invariants = Invariants(self) if invariants else None
         self._phase("rest", t0)
@@ -239,10 +239,11 @@ class Simulation:
 
     def check(self) -> None:
         """Stop on NaN, a particle outside the domain or a density out of bounds."""
-        # one backend check a rank (a device backend's one wait); [domain] exclude_outside
-        # removes and counts the rows it finds out of bounds, checking those ranks again
-        bads = self.features.exclude(self, [self.compute.check(c.state, self.lo, self.hi)
-                                            for c in self.contexts])
+        # one backend check a rank (a device backend's one wait): with [domain] exclude_outside
+        # the step's `exclude` task ran it (and removed the rows out of bounds), else here
+        bads = [c.state.check if c.state.check_step == c.state.step
+                else self.compute.check(c.state, self.lo, self.hi) for c in self.contexts]
+        self.features.collect_exclusions(self)
         found = None
         for c, bad in zip(self.contexts, bads):
             if bad is None and self.invariants is not None:
@@ -250,7 +251,7 @@ class Simulation:
             if bad is not None and found is None:
                 row, cause = bad
                 found = (c.rank, int(c.state.particles.id[row]), cause)
-        found = self.comm.first_problem(found) if hasattr(self.comm, "first_problem") else found
+        found = self.comm.first_problem(found)
         if found is not None:
             rank, pid, cause = found
             where = f" on rank {rank}" if self.nranks > 1 else ""
@@ -521,7 +522,7 @@ def _keep_exclusions(out_dir, sim, step) -> None:
 
 def _write_timing(writer, sim) -> None:
     cols = sim.scheduler.times.columns()
-    if len(sim.comm.local_ranks) < sim.nranks and hasattr(sim.comm, "gather"):
+    if len(sim.comm.local_ranks) < sim.nranks:
         parts = sim.comm.gather(cols)    # MPI: every rank's /timing rows to the root
         if parts is not None:
             cols = {k: np.concatenate([p[k] for p in parts]) for k in cols}

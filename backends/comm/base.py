@@ -60,6 +60,16 @@ class CommBackend:
     def bcast(self, obj):
         return obj
 
+    def gather(self, obj) -> list | None:
+        """`obj` of every process on the root (a list in rank order), None elsewhere; a backend
+        that holds every rank in this process has one object: [obj]."""
+        return [obj]
+
+    def first_problem(self, found):
+        """The lowest rank's end-of-step problem (or None), the same on every process; this
+        process's `found` where it holds every rank."""
+        return found
+
     def abort(self, code: int) -> None:
         pass
 

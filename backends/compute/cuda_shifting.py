@@ -153,6 +153,8 @@ class CudaShifting:
     """Particle shifting on the device (mixed into NumbaCUDA; launches and copies on the
     running task's lane stream, `NumbaCUDA._on` / `_s`)."""
 
+    scene_features = frozenset({"shifting"})
+
     def _shift_bufs(self, dv, part):
         """gx, gy, gz, div, cancel of `part` in dv.arrays, of the rows' capacity (dv.n may
         grow up to dv.cap when rows arrive); allocated on first use."""
