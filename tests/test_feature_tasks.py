@@ -206,3 +206,38 @@ def test_a_feature_off_has_no_task(kind):
     gone = {"periodic": set(PERIODIC) | {"shift_images"}, "shifting": set(SHIFTING),
             "motion": set(MOTION), "exclusion": set(EXCLUSION)}[kind]
     assert not (gone & labels), gone & labels
+
+
+def test_a_schedule_may_place_feature_tasks_and_the_validator_proves_the_place():
+    from sphgraph.graph.kinds import FEATURES
+    from sphgraph.schedule import Schedule, ScheduleError
+    base = ["send_displaced", "build_cells", "recv_displaced", "send_edges", "forces_interior",
+            "recv_halo_1", "forces_halo_1", "recv_halo_2", "forces_halo_2", "dt_local", "dt_allreduce",
+            "integrate"]
+    # named feature tasks go where the order says: the images' forces commute with the
+    # interior's, their shifting sums with the halos'
+    ok = list(base)
+    ok.insert(ok.index("forces_interior"), "forces_images")
+    ok.insert(ok.index("dt_local"), "shift_images")
+    ok += ["wrap", "exclude"]
+    s = Schedule.load({"format": 1, "order": ok})
+    s.validate(1, 2, features=FEATURES)
+    s.validate(3, 2, features=FEATURES, ring=True)
+    names = [t.name for t in s.program(1, 3, 2, features=FEATURES, ring=True)]
+    assert names.index("forces_images@2") < names.index("forces_interior@2")
+    assert names.index("forces_halo_2@2") < names.index("shift_images@2") < names.index("integrate@2")
+    # the unnamed ones are placed: shifting around integrate, then motion and damping, then the named wrap
+    assert names.index("integrate@2") < names.index("shift_apply@2") < names.index("motion@2") \
+        < names.index("damping@2") < names.index("wrap@2") < names.index("exclude")
+    # a reorder the data forbid: wrap (writes positions) before damping (reads them)
+    bad = base + ["wrap", "damping"]
+    with pytest.raises(ScheduleError, match="wrap@2 is placed before damping@2"):
+        Schedule.load({"format": 1, "order": bad}).validate(1, 2, features=FEATURES)
+    # the displacement must see the velocities before the update, the apply must follow it
+    for order, task, why in ((base[:-1] + ["integrate", "shift_displacement"], "shift_displacement",
+                              "velocities: write after read"),
+                             (base[:-1] + ["shift_apply", "integrate"], "shift_apply", "positions")):
+        with pytest.raises(ScheduleError, match=task) as e:
+            Schedule.load({"format": 1, "order": order}).validate(1, 1, features=FEATURES)
+        assert why in str(e.value), str(e.value)
+    Schedule.load({"format": 1, "order": base[:-1] + ["integrate", "shift_displacement"]}).validate(1, 1)
