@@ -21,6 +21,8 @@ by :func:`task_kinds` and run through the scheduler like the others:
 ``exclude``               end of step: the backend's check of the rows; rows out of bounds
                           (``[domain] exclude_outside``, on by default as in DualSPHysics)
                           removed and counted
+``probes``                end of step (runs that write output): ``[probes]`` / ``[forces]``
+                          sampled when due (:mod:`.probes`)
 ========================  =============================================================
 
 A scene without a feature gets none of its tasks and none of its work.
@@ -42,9 +44,15 @@ def image_axes(scene, split_axis, nranks: int) -> list[int]:
     return [a for a in axes if not (nranks > 1 and a == split_axis)]
 
 
-def task_kinds(scene, split_axis=None, nranks: int = 1) -> frozenset:
+def samples(scene) -> bool:
+    """Whether `scene` asks for probes or body forces."""
+    return "probes" in scene.extra or "forces" in scene.extra
+
+
+def task_kinds(scene, split_axis=None, nranks: int = 1, sample: bool = False) -> frozenset:
     """The feature task kinds of `scene` on `nranks` ranks split along `split_axis` (None:
-    not yet known, every periodic axis counted as one of images)."""
+    not yet known, every periodic axis counted as one of images); `sample`: the run samples
+    the scene's probes and forces (a run that writes output)."""
     ph = scene.physics
     out = set()
     if ph.boundary != "dbc":
@@ -60,6 +68,8 @@ def task_kinds(scene, split_axis=None, nranks: int = 1) -> frozenset:
         out.add(K.DAMPING)
     if scene.exclude_outside:
         out.add(K.EXCLUDE)
+    if sample and samples(scene):
+        out.add(K.PROBES)
     return frozenset(out)
 
 
@@ -71,7 +81,7 @@ def scene_layout(scene, nranks: int) -> tuple[frozenset, bool]:
         from .domain import choose_axis
         axis = choose_axis(scene.decomposition_axis, scene.build_particles(), scene.constants.gravity)
     ring = bool(nranks > 1 and "xyz"[axis] in scene.periodic)
-    return task_kinds(scene, axis, nranks), ring
+    return task_kinds(scene, axis, nranks, sample=True), ring
 
 
 class Mdbc:
@@ -96,8 +106,14 @@ class Mdbc:
 
 
 class Features:
-    def __init__(self, scene):
+    def __init__(self, scene, sample: bool = False):
+        """`sample`: the run samples the scene's probes and forces (`probes` task)."""
         self.scene = scene
+        self.sample = bool(sample and samples(scene))
+        self.probes = None
+        if self.sample:   # validated before anything of the scene's size exists
+            from .probes import ProbeSampler
+            self.probes = ProbeSampler(scene)
         self.mdbc = None
         self.motion = None
         self.damping = None
@@ -108,7 +124,7 @@ class Features:
         self.restored = None        # a checkpoint's rows (every rank's, on the root), see restore_exclusions
         self.restored_step = -1
         self.stages = 1 if scene.physics.integrator == "verlet" else 2
-        self.kinds = task_kinds(scene)   # until the split axis is known (`attach`)
+        self.kinds = task_kinds(scene, sample=self.sample)   # until the split axis is known (`attach`)
         self.lo = self.hi = None    # the domain bounds of the end-of-step check (periodic: widened)
 
     def ring(self, axis, nranks: int) -> bool:
@@ -139,7 +155,9 @@ class Features:
         from .motion import Motion
         from .waves import Damping
         s = self.scene
-        self.kinds = task_kinds(s, sim.axis, sim.nranks)
+        self.kinds = task_kinds(s, sim.axis, sim.nranks, sample=self.sample)
+        if self.probes is not None:   # every rank's task shares the one sampler (mock) or not (MPI)
+            self.probes.shared = len(sim.comm.local_ranks) == sim.nranks
         if K.MDBC in self.kinds:
             self.mdbc = Mdbc(s)
         self.motion = Motion.from_scene(s, particles)

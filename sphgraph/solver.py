@@ -62,10 +62,11 @@ class Simulation:
     def __init__(self, scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production",
                  precision=None, dp=None, end_time=None, user_tasks=(), fixed_dt=None,
                  comm_options=None, decomposition_axis=None, balance=None, particles=None, cuts=None,
-                 invariants=True):
+                 invariants=True, sample=False):
         """`particles` (optional): start from these particles instead of `scene.build_particles`:
         a `Particles` set (decomposed here), or one block per rank with their slab `cuts`
-        (kept when the rank count matches, re-decomposed otherwise) -- a restart."""
+        (kept when the rank count matches, re-decomposed otherwise) -- a restart. `sample`:
+        sample the scene's `[probes]` / `[forces]` (the `probes` task; `probe_sampler`)."""
         if not isinstance(scene, Scene):
             scene = Scene.from_toml(scene)
         if dp is not None or end_time is not None:
@@ -100,8 +101,9 @@ class Simulation:
                           and "rebalance" in self.schedule.order)
         from .features import Features
         # mDBC, periodic images, shifting, moving bodies...: only what the scene asks, as tasks
-        self.features = Features(scene)
+        self.features = Features(scene, sample=sample)
         self.features.check_backend(compute_cls, self.nranks)
+        self.probe_sampler = self.features.probes   # its samples go into checkpoints and come back
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
                                features=self.features.kinds)
         self.compute = compute_cls()
@@ -335,12 +337,10 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      particles=None if saved is None else ck.blocks_for(saved, PRECISIONS[precision]),
                      cuts=None if saved is None else saved.cuts,
                      decomposition_axis=None if saved is None or saved.meta["axis"] < 0
-                     else "xyz"[saved.meta["axis"]], invariants=invariants)
+                     else "xyz"[saved.meta["axis"]], invariants=invariants, sample=write_output)
     scene = sim.scene
     t_end = scene.end_time
-    from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
-    sampler = ProbeSampler(scene) if write_output and ("probes" in scene.extra or "forces" in scene.extra) else None
-    sim.probe_sampler = sampler   # its samples go into checkpoints (ck.save) and come back on restart
+    sampler = sim.probe_sampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
     if saved is not None:
         ck.check_scene(saved, scene)
         ck.restore(sim, saved)
@@ -388,15 +388,13 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
         try:
             if write_output and saved is None:
                 save_frame()
-            if sampler is not None:
+            if sampler is not None:   # the initial state; each step's own task samples its end
                 sampler.sample(sim)
             next_out = scene.output_interval if saved is None else float(saved.meta["next_out"])
             t0 = time.perf_counter()
             compile_s = 0.0
             while sim.time < t_end - 1e-12 and (max_steps is None or sim.step_count < max_steps):
                 sim.step()
-                if sampler is not None:
-                    sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
                 if sim.step_count == start_step + 1:
                     compile_s = time.perf_counter() - t0
                     prog.note(f"first step {compile_s:.2f} s (includes numba compilation)")

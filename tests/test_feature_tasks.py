@@ -1,8 +1,8 @@
 """Every scene feature's work is its own task of the step graph (issue 23 §1, §7).
 
 A scene with every feature on -- a periodic axis, particle shifting, a moving body, a
-damping zone, exclusion, probes and body forces -- and one with mDBC (numba-cpu, one rank,
-no moving body): each feature's tasks are in the step graph with their dependencies, in
+damping zone, exclusion, probes and body forces (sampled by a run that writes output: its
+`probes` task) -- and one with mDBC (numba-cpu, one rank, no moving body): each feature's tasks are in the step graph with their dependencies, in
 `/timing` of output.h5 once a rank and step (stage), in the Chrome trace and in `sphgraph
 schedule show --scene`. The compute backend records which task is running whenever the
 core calls it: after set-up every call that computes or changes the rows comes from inside
@@ -97,6 +97,7 @@ SHIFTING = {"shift_interior": {("shift_part", "interior")}, "shift_images": {("s
 SHIFTING_HALOS = {"shift_halo_1": {("shift_part", "halo_1")}, "shift_halo_2": {("shift_part", "halo_2")}}
 MOTION = {"motion": set(), "damping": set()}
 EXCLUSION = {"exclude": {("check", None)}}
+PROBES = {"probes": set()}
 MDBC = {"mdbc": {("mdbc", None)}}
 
 
@@ -125,10 +126,11 @@ def _check(timing, calls, expected, ranks, stages, steps):
 def test_every_feature_is_its_own_task_on_one_and_three_ranks(tmp_path):
     sc = everything()
     for ranks in (1, 3):
-        sim = Simulation(sc, backend=Recording, comm="single" if ranks == 1 else "mock", ranks=ranks)
-        expected = {**PERIODIC, **SHIFTING, **MOTION, **EXCLUSION}
+        sim = Simulation(sc, backend=Recording, comm="single" if ranks == 1 else "mock", ranks=ranks,
+                         sample=True)
+        expected = {**PERIODIC, **SHIFTING, **MOTION, **EXCLUSION, **PROBES}
         if ranks == 3:   # the split axis is the periodic one: a ring, no images, halos both sides
-            expected = {**SHIFTING, **MOTION, **EXCLUSION, **SHIFTING_HALOS}
+            expected = {**SHIFTING, **MOTION, **EXCLUSION, **PROBES, **SHIFTING_HALOS}
             for k in ("shift_images", "forces_images", "wrap"):
                 expected.pop(k, None)
         # the step graph: each task there, ordered by its declared data
@@ -155,12 +157,15 @@ def test_every_feature_is_its_own_task_on_one_and_three_ranks(tmp_path):
             sim.step()
         t = sim.scheduler.times.columns()
         _check(t, sim.compute.calls, expected, ranks, 2, steps)
+        # the probes task sampled every step (interval 0): probes and forces at each step's end
+        rows = sim.probe_sampler.rows
+        assert [r["step"] for r in rows["probes"]] == [r["step"] for r in rows["forces"]] == list(range(1, 7))
 
 
 def test_timing_trace_and_schedule_show_list_the_feature_tasks(tmp_path, capsys):
     res, t = _run(tmp_path, everything(integrator="verlet"), 1)
     labels = {str(x).split("@")[0] for x in t["task"]}
-    want = set(PERIODIC) | set(SHIFTING) | set(MOTION) | set(EXCLUSION)
+    want = set(PERIODIC) | set(SHIFTING) | set(MOTION) | set(EXCLUSION) | set(PROBES)
     assert want <= labels, want - labels
     trace = write_chrome_trace(res.out_dir, tmp_path / "trace.json")
     names = {e["name"].split("@")[0] for e in json.load(open(trace))["traceEvents"] if e["ph"] == "X"}
@@ -188,7 +193,7 @@ def test_mdbc_is_its_own_task(tmp_path):
     assert names.index("mdbc@1") < names.index("forces_interior@1")
 
 
-@pytest.mark.parametrize("kind", ["periodic", "shifting", "motion", "exclusion"])
+@pytest.mark.parametrize("kind", ["periodic", "shifting", "motion", "exclusion", "probes"])
 def test_a_feature_off_has_no_task(kind):
     d = everything().to_dict()
     if kind == "periodic":
@@ -199,13 +204,17 @@ def test_a_feature_off_has_no_task(kind):
     elif kind == "motion":
         d.pop("motion")
         d.pop("damping")
-    else:
+    elif kind == "exclusion":
         d["domain"]["exclude_outside"] = False
-    sim = Simulation(Scene.from_dict(d))
+    else:
+        d.pop("probes")
+        d.pop("forces")
+    sim = Simulation(Scene.from_dict(d), sample=True)
     labels = {t.label for t in sim.scheduler.programs[0]}
     gone = {"periodic": set(PERIODIC) | {"shift_images"}, "shifting": set(SHIFTING),
-            "motion": set(MOTION), "exclusion": set(EXCLUSION)}[kind]
+            "motion": set(MOTION), "exclusion": set(EXCLUSION), "probes": set(PROBES)}[kind]
     assert not (gone & labels), gone & labels
+    assert "probes" not in {t.label for t in Simulation(everything()).scheduler.programs[0]}   # no output
 
 
 def test_a_schedule_may_place_feature_tasks_and_the_validator_proves_the_place():

@@ -38,6 +38,7 @@ class TaskKind(Enum):
     DAMPING = ("damping", "Damping", "compute", True)
     WRAP = ("wrap", "Periodic", "compute", True)
     EXCLUDE = ("exclude", "Exclusion", "compute", False)
+    PROBES = ("probes", "Probes", "compute", False)
 
     def __init__(self, label, timer, lane, per_stage):
         self.label = label
@@ -69,7 +70,7 @@ NEEDS_NEIGHBOUR = {
 FEATURES = (TaskKind.MDBC, TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES,
             TaskKind.SHIFT_HALO_1, TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT,
             TaskKind.SHIFT_APPLY, TaskKind.MOTION, TaskKind.DAMPING, TaskKind.WRAP,
-            TaskKind.EXCLUDE)
+            TaskKind.EXCLUDE, TaskKind.PROBES)
 # Kinds placed only when the run asks for them: rebalance on check steps, the features'
 CONDITIONAL = (TaskKind.REBALANCE,) + FEATURES
 # dt is computed once per step, from the first force stage
@@ -97,4 +98,5 @@ PLACEMENT = {
     TaskKind.DAMPING: ("after", ("integrate", "shift_apply", "motion")),
     TaskKind.WRAP: ("after", ("integrate", "shift_apply", "motion", "damping")),
     TaskKind.EXCLUDE: ("end", ()),
+    TaskKind.PROBES: ("end", ()),
 }

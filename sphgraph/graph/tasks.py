@@ -20,6 +20,7 @@ Data names (what tasks read, write or accumulate; `DATA` lists them):
   displacement  the shifting displacement of the step
   dt_local, dt  the rank's dt proposal and the global dt
   check       the end-of-step check's finding (row, cause) or none
+  samples     the run's probe and body-force samples (sphgraph.probes)
   edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
 
 Scene features add their own tasks, only when the scene asks (sphgraph.features): `mdbc@s`
@@ -28,8 +29,9 @@ Scene features add their own tasks, only when the scene asks (sphgraph.features)
 (`shift_interior`, `shift_images`, `shift_halo_1/2`, last stage), `shift_displacement`
 (before `integrate`, from the velocities the forces saw) and `shift_apply` (after it),
 `motion@s` (moving bodies at the stage's end time), `damping` and `wrap` (periodic axes,
-last stage) and `exclude` (end of step: the backend's check, rows out of bounds
-removed). Their place in a schedule that does not name them is
+last stage), `exclude` (end of step: the backend's check, rows out of bounds
+removed) and `probes` (end of step, a collective: the rows gathered on the root and
+sampled when a sample is due). Their place in a schedule that does not name them is
 `kinds.PLACEMENT`.
 
 The canonical order below is the step as a sequential program; dependencies
@@ -41,7 +43,7 @@ from .kinds import FIRST_STAGE_ONLY, LAST_STAGE_ONLY, NEEDS_NEIGHBOUR, TaskKind 
 from .task import GROUPS, Message, Task
 
 DATA = ("rows", "positions", "velocities", "densities", "cells", "halo_1", "halo_2", "images",
-        "forces@s", "shift_sums", "displacement", "dt_local", "dt", "check", "edges@s",
+        "forces@s", "shift_sums", "displacement", "dt_local", "dt", "check", "samples", "edges@s",
         "displaced") + tuple(GROUPS)
 
 # tags: one per (message type, stage, direction) so MPI's non-overtaking rule is never needed
@@ -58,7 +60,7 @@ STAGE = (K.MDBC, K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, 
          K.SHIFT_INTERIOR, K.SHIFT_IMAGES, K.FORCES_HALO_1, K.SHIFT_HALO_1, K.FORCES_HALO_2,
          K.SHIFT_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.SHIFT_DISPLACEMENT, K.INTEGRATE,
          K.SHIFT_APPLY, K.MOTION, K.DAMPING, K.WRAP)
-POST = (K.REBALANCE, K.EXCLUDE)
+POST = (K.REBALANCE, K.EXCLUDE, K.PROBES)
 
 
 def in_stage(kind: K, stage: int, stages: int) -> bool:
@@ -152,7 +154,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
         reads, writes, accumulates, fn = feature
         at = (lambda names: tuple(x.replace("@s", f"@{s}") for x in names))
         return Task(kind, s if kind.per_stage else None, reads=at(reads), writes=at(writes),
-                    accumulates=at(accumulates), lane=lane, fn=fn,
+                    accumulates=at(accumulates), lane=lane, fn=fn, collective=kind is K.PROBES,
                     meta={"part": _SHIFT_PART.get(kind)})
     raise ValueError(kind)
 
@@ -279,6 +281,10 @@ def run_exclude(ctx, task):
     ctx.features.exclude(ctx)
 
 
+def run_probes(ctx, task):
+    ctx.features.probes.sample_step(ctx)
+
+
 _SHIFT_PART = {K.SHIFT_INTERIOR: "interior", K.SHIFT_IMAGES: "halo_3", K.SHIFT_HALO_1: "halo_1",
                K.SHIFT_HALO_2: "halo_2"}
 _FIELDS = ("rows", "positions", "velocities", "densities")
@@ -301,4 +307,6 @@ FEATURE_ACCESS = {
     K.WRAP: (("positions",), ("positions",), (), run_wrap),
     # the backend's end-of-step check; rows out of bounds removed (buffers for the new count)
     K.EXCLUDE: (("particles", "dt"), ("particles", "cells", "check"), (), run_exclude),
+    # a collective (every rank's rows to the root) at the steps a sample is due
+    K.PROBES: (("particles", "dt"), ("samples",), (), run_probes),
 }
