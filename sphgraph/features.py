@@ -44,6 +44,11 @@ def image_axes(scene, split_axis, nranks: int) -> list[int]:
     return [a for a in axes if not (nranks > 1 and a == split_axis)]
 
 
+def is_ring(scene, split_axis, nranks: int) -> bool:
+    """Whether the slab chain closes into a ring (the split axis is periodic)."""
+    return bool(nranks > 1 and split_axis is not None and "xyz"[split_axis] in scene.periodic)
+
+
 def samples(scene) -> bool:
     """Whether `scene` asks for probes or body forces."""
     return "probes" in scene.extra or "forces" in scene.extra
@@ -80,8 +85,7 @@ def scene_layout(scene, nranks: int) -> tuple[frozenset, bool]:
     if nranks > 1:
         from .domain import choose_axis
         axis = choose_axis(scene.decomposition_axis, scene.build_particles(), scene.constants.gravity)
-    ring = bool(nranks > 1 and "xyz"[axis] in scene.periodic)
-    return task_kinds(scene, axis, nranks, sample=True), ring
+    return task_kinds(scene, axis, nranks, sample=True), is_ring(scene, axis, nranks)
 
 
 class Mdbc:
@@ -129,7 +133,7 @@ class Features:
 
     def ring(self, axis, nranks: int) -> bool:
         """Whether the slab chain closes into a ring (the split axis is periodic)."""
-        return bool(nranks > 1 and axis is not None and "xyz"[axis] in self.scene.periodic)
+        return is_ring(self.scene, axis, nranks)
 
     def check_backend(self, compute_cls, nranks: int) -> None:
         """Refuse (InputError, one line) a feature the compute backend does not run."""
