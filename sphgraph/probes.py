@@ -37,6 +37,7 @@ import numpy as np
 
 from .config import K_WENDLAND, KERNELS, P_AW, P_BW
 from .errors import InputError
+from .particles import in_id_order
 
 __all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor"]
 
@@ -185,11 +186,7 @@ class ProbeSampler:
             if not self.shared:   # MPI: each process keeps its own marks in step with the root's
                 self._advance_marks(t)
             return
-        a = rows[0] if len(rows) == 1 else {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
-        order = np.argsort(a["id"], kind="stable")
-        if not np.array_equal(order, np.arange(len(order))):
-            a = {k: v[order] for k, v in a.items()}
-        self.sample_arrays(t, st.step + 1, a)
+        self.sample_arrays(t, st.step + 1, in_id_order(rows))
 
     def _advance_marks(self, t) -> None:
         s = self.spec

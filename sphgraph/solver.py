@@ -17,6 +17,7 @@ from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
 from .errors import CAUSES, CommError, DiskFullError, InputError, NumericalError, SphgraphError
+from .particles import in_id_order
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -267,16 +268,7 @@ class Simulation:
         """All ranks' particles in id order (on the root; None elsewhere)."""
         per = {c.rank: self.compute.host_arrays(c.state) for c in self.contexts}
         rows = self.comm.gather_rows(per)
-        if rows is None:
-            return None
-        if len(rows) == 1:
-            a = rows[0]
-        else:
-            a = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
-        order = np.argsort(a["id"], kind="stable")
-        if not np.array_equal(order, np.arange(len(order))):
-            a = {k: v[order] for k, v in a.items()}
-        return a
+        return None if rows is None else in_id_order(rows)
 
     def root_attrs(self, backend: str, comm: str) -> dict:
         return {"scene": self.scene.text, "version": __version__, "backend": backend, "comm": comm,
