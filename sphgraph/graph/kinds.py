@@ -71,7 +71,8 @@ FEATURES = (TaskKind.MDBC, TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, Task
             TaskKind.SHIFT_HALO_1, TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT,
             TaskKind.SHIFT_APPLY, TaskKind.MOTION, TaskKind.DAMPING, TaskKind.WRAP,
             TaskKind.EXCLUDE, TaskKind.PROBES)
-# Kinds placed only when the run asks for them: rebalance on check steps, the features'
+# Kinds placed only when the run asks for them: rebalance on check steps, a feature's
+# tasks when the scene has the feature
 CONDITIONAL = (TaskKind.REBALANCE,) + FEATURES
 # dt is computed once per step, from the first force stage
 FIRST_STAGE_ONLY = (TaskKind.DT_LOCAL, TaskKind.DT_ALLREDUCE)
