@@ -294,8 +294,8 @@ def _balancer_state(sim) -> str:
 
 
 def _sampler_state(sim) -> str:
-    """/probes and /forces samples so far (root's `ProbeSampler`, set by `run`), or "{}"."""
-    sampler = getattr(sim, "probe_sampler", None)
+    """/probes and /forces samples so far (root's `ProbeSampler` of a run that samples), or "{}"."""
+    sampler = sim.probe_sampler
     return "{}" if sampler is None else sampler.state_json()
 
 
@@ -396,7 +396,7 @@ def restore(sim, ckpt: Checkpoint) -> None:
         c.state.step = sim.step_count
         c.state.dt = float(ckpt.meta["dt"])
     _restore_balancer(sim, ckpt.meta.get("balancer", "{}"), int(ckpt.meta["ranks"]) == sim.nranks)
-    sampler = getattr(sim, "probe_sampler", None)
+    sampler = sim.probe_sampler
     text = ckpt.meta.get("probes", "{}")
     if sampler is not None and text not in (None, "", "{}"):
         sampler.restore_json(text)

@@ -123,7 +123,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("name")
     s.add_argument("--ranks", type=int, default=3)
     s.add_argument("--rank", type=int, default=1)
-    s.add_argument("--integrator", choices=["verlet", "symplectic"], default="verlet")
+    s.add_argument("--integrator", choices=["verlet", "symplectic"], default=None,
+                   help="default: the scene's, else verlet")
+    s.add_argument("--scene", help="with the feature tasks of this scene (its integrator unless "
+                                   "--integrator is given)")
     s.add_argument("--plot", help="draw the multi-rank graph to this PNG/SVG file")
 
     p = sub.add_parser("trace", help="export task timings")
@@ -347,12 +350,21 @@ def cmd_schedule(args) -> int:
         print(f"{sched.source}: valid for 1 and {args.ranks} ranks, "
               f"{' and '.join('Verlet' if s == 1 else 'Symplectic' for s in stages)}")
         return 0
-    stages = 1 if args.integrator == "verlet" else 2
-    sched.validate(args.ranks, stages)
-    print(sched.describe(ranks=args.ranks, stages=stages, rank=min(args.rank, args.ranks - 1)))
+    integrator = args.integrator or "verlet"
+    kinds, ring = frozenset(), False
+    if args.scene is not None:   # the scene's feature tasks, for its split axis on --ranks ranks
+        from .features import scene_layout
+        from .scene import Scene
+        scene = Scene.from_toml(args.scene)
+        kinds, ring = scene_layout(scene, args.ranks)
+        integrator = args.integrator or scene.physics.integrator
+    stages = 1 if integrator == "verlet" else 2
+    sched.validate(args.ranks, stages, features=kinds, ring=ring)
+    print(sched.describe(ranks=args.ranks, stages=stages, rank=min(args.rank, args.ranks - 1),
+                         features=kinds, ring=ring))
     if args.plot:
         from .plots import plot_schedule_graph
-        path = plot_schedule_graph(sched, args.ranks, stages, args.plot)
+        path = plot_schedule_graph(sched, args.ranks, stages, args.plot, kinds, ring)
         print(f"wrote {path}")
     return 0
 

@@ -1,29 +1,117 @@
 """Scene features beyond fluid in fixed boxes, switched on by the scene and absent otherwise.
 
-One object per run holds what the scene asks for -- moving bodies (:mod:`.motion`),
-damping zones (:mod:`.waves`), periodic axes (:mod:`.periodic`), exclusion of
-particles that leave the domain, particle shifting (:mod:`.shifting`) -- and the
-solver calls it at fixed points:
+One object per run holds what the scene asks for -- mDBC boundaries
+(:mod:`.physics.mdbc`), periodic axes (:mod:`.periodic`), particle shifting
+(:mod:`.shifting`), moving bodies (:mod:`.motion`), damping zones (:mod:`.waves`),
+exclusion of particles that leave the domain -- and each feature's work is tasks of the
+step graph (`graph.kinds.FEATURES`; data access in `graph.tasks.FEATURE_ACCESS`), placed
+by :func:`task_kinds` and run through the scheduler like the others:
 
-* ``motion`` task (after ``integrate`` of each stage; placed in the step graph only
-  when :attr:`Features.motion_task` is true): :meth:`post_integrate`;
-* each force task: :meth:`after_forces` -- ``forces_interior`` adds the periodic-image
-  force part; with shifting, every force task adds its source set's shifting sums;
-* ``integrate``: :meth:`before_integrate` / :meth:`after_integrate` (shifting);
-* the end-of-step check: :meth:`exclude` removes and counts particles out of bounds
-  (``[domain] exclude_outside``, on by default as in DualSPHysics) and stops the run once
-  they pass ``exclude_max_share`` of its fluid particles.
+========================  =============================================================
+``mdbc@s``                boundary densities and velocities from the fluid at their ghost
+                          nodes, before the stage's forces (``[physics] boundary``)
+``forces_images@s``       the rows against the periodic images of their own rows (part
+                          ``halo_3``)
+``shift_interior``, ...   the shifting sums of each source set (interior, images, halo 1,
+                          halo 2), last stage
+``shift_displacement``    the displacements, from the velocities before ``integrate``
+``shift_apply``           the displacements added to the new positions
+``motion@s``              moving bodies at the stage's end time
+``damping``, ``wrap``     damping zones, periodic wrapping (last stage)
+``exclude``               end of step: the backend's check of the rows; rows out of bounds
+                          (``[domain] exclude_outside``, on by default as in DualSPHysics)
+                          removed and counted
+``probes``                end of step (runs that write output): ``[probes]`` / ``[forces]``
+                          sampled when due (:mod:`.probes`)
+========================  =============================================================
 
-A scene without any of them gets ``Features.none`` behaviour: no extra task, no work.
+A scene without a feature gets none of its tasks and none of its work.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .graph.kinds import TaskKind as K
+
+SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
+MDBC_SUPPORTED = "--backend numba-cpu or numba-cuda, one rank, no [[motion]] bodies"
+
+
+def image_axes(scene, split_axis, nranks: int) -> list[int]:
+    """The periodic axes done by images and wrapping: all but a periodic split axis of
+    several ranks (a ring of slabs, `sphgraph.periodic`)."""
+    axes = ["xyz".index(a) for a in scene.periodic]
+    return [a for a in axes if not (nranks > 1 and a == split_axis)]
+
+
+def is_ring(scene, split_axis, nranks: int) -> bool:
+    """Whether the slab chain closes into a ring (the split axis is periodic)."""
+    return bool(nranks > 1 and split_axis is not None and "xyz"[split_axis] in scene.periodic)
+
+
+def samples(scene) -> bool:
+    """Whether `scene` asks for probes or body forces."""
+    return "probes" in scene.extra or "forces" in scene.extra
+
+
+def task_kinds(scene, split_axis=None, nranks: int = 1, sample: bool = False) -> frozenset:
+    """The feature task kinds of `scene` on `nranks` ranks split along `split_axis` (None:
+    not yet known, every periodic axis counted as one of images); `sample`: the run samples
+    the scene's probes and forces (a run that writes output)."""
+    ph = scene.physics
+    out = set()
+    if ph.boundary != "dbc":
+        out.add(K.MDBC)
+    images = bool(image_axes(scene, split_axis, nranks))
+    if images:
+        out |= {K.FORCES_IMAGES, K.WRAP}
+    if ph.shifting != "none":
+        out |= set(SHIFT_KINDS) | ({K.SHIFT_IMAGES} if images else set())
+    if scene.extra.get("motion"):
+        out.add(K.MOTION)
+    if scene.extra.get("damping"):
+        out.add(K.DAMPING)
+    if scene.exclude_outside:
+        out.add(K.EXCLUDE)
+    if sample and samples(scene):
+        out.add(K.PROBES)
+    return frozenset(out)
+
+
+def scene_layout(scene, nranks: int) -> tuple[frozenset, bool]:
+    """(feature task kinds, ring) of `scene` on `nranks` ranks, its split axis chosen as a
+    run chooses it (`sphgraph schedule show --scene`)."""
+    axis = None
+    if nranks > 1:
+        from .domain import choose_axis
+        axis = choose_axis(scene.decomposition_axis, scene.build_particles(), scene.constants.gravity)
+    return task_kinds(scene, axis, nranks, sample=True), is_ring(scene, axis, nranks)
+
+
+class Mdbc:
+    """The ``mdbc`` task: modified dynamic boundaries (English et al. 2022, DualSPHysics'
+    mDBC) on the boundary rows of one rank."""
+
+    def __init__(self, scene, det_min: float = 1e-3, noslip: bool | None = None):
+        from .physics.mdbc import interface_boxes
+        self.boxes = interface_boxes(scene)
+        self.noslip = scene.physics.boundary == "mdbc-noslip" if noslip is None else noslip
+        self.det_min = det_min
+
+    def apply(self, ctx) -> None:
+        ctx.compute.mdbc(ctx.state, self.boxes, self.det_min, self.noslip)
+
 
 class Features:
-    def __init__(self, scene):
+    def __init__(self, scene, sample: bool = False):
+        """`sample`: the run samples the scene's probes and forces (`probes` task)."""
         self.scene = scene
+        self.sample = bool(sample and samples(scene))
+        self.probes = None
+        if self.sample:   # validated before anything of the scene's size exists
+            from .probes import ProbeSampler
+            self.probes = ProbeSampler(scene)
+        self.mdbc = None
         self.motion = None
         self.damping = None
         self.periodic = None
@@ -33,28 +121,42 @@ class Features:
         self.restored = None        # a checkpoint's rows (every rank's, on the root), see restore_exclusions
         self.restored_step = -1
         self.stages = 1 if scene.physics.integrator == "verlet" else 2
-
-    @property
-    def motion_task(self) -> bool:
-        """Whether the step graph needs the ``motion`` task."""
-        s = self.scene
-        return bool(s.extra.get("motion") or s.extra.get("damping") or s.periodic)
+        self.kinds = task_kinds(scene, sample=self.sample)   # until the split axis is known (`attach`)
+        self.lo = self.hi = None    # the domain bounds of the end-of-step check (periodic: widened)
 
     def ring(self, axis, nranks: int) -> bool:
         """Whether the slab chain closes into a ring (the split axis is periodic)."""
-        return bool(nranks > 1 and axis is not None and "xyz"[axis] in self.scene.periodic)
+        return is_ring(self.scene, axis, nranks)
 
-    @property
-    def active(self) -> bool:
-        ph = self.scene.physics
-        return (self.motion_task or self.exclude_outside or ph.shifting != "none"
-                or ph.diffusion_time != "leapfrog" or ph.riemann != "none")
+    def check_backend(self, compute_cls, nranks: int) -> None:
+        """Refuse (InputError, one line) a feature the compute backend does not run."""
+        from .errors import InputError
+        s, ph, name = self.scene, self.scene.physics, compute_cls.name
+        have = compute_cls.scene_features
+        for key, value, off in (("riemann", ph.riemann, "none"), ("diffusion_time", ph.diffusion_time, "leapfrog")):
+            if value != off and key not in have:
+                raise InputError(f"{s.source}: physics.{key}: {value!r} runs with --backend numba-cpu "
+                                 f"(or use {key} = \"{off}\"), got {name}")
+        if ph.shifting != "none" and "shifting" not in have:
+            raise InputError(f"{s.source}: physics.shifting: expected \"none\" with --backend {name} (it has "
+                             f"no particle shifting; use numba-cpu), got {ph.shifting!r}")
+        if ph.boundary != "dbc":
+            why = (f"--backend {name}" if "mdbc" not in have else f"{nranks} ranks" if nranks != 1
+                   else "[[motion]] bodies" if s.extra.get("motion") else None)
+            if why is not None:
+                raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "
+                                 f"(or use boundary = \"dbc\"), got {why}")
 
     def attach(self, sim, particles) -> None:
-        """Build the features from the scene's initial ``particles`` and hook them to every rank."""
+        """Build the features from the scene's initial ``particles`` and hand them to every rank."""
         from .motion import Motion
         from .waves import Damping
         s = self.scene
+        self.kinds = task_kinds(s, sim.axis, sim.nranks, sample=self.sample)
+        if self.probes is not None:   # every rank's task shares the one sampler (mock) or not (MPI)
+            self.probes.shared = len(sim.comm.local_ranks) == sim.nranks
+        if K.MDBC in self.kinds:
+            self.mdbc = Mdbc(s)
         self.motion = Motion.from_scene(s, particles)
         self.damping = Damping.from_scene(s)
         if s.periodic:
@@ -64,78 +166,65 @@ class Features:
         if s.physics.shifting != "none":
             from .shifting import Shifting
             self.shifting = Shifting.from_scene(s, sim)
+        self.lo, self.hi = sim.lo, sim.hi
         for c in sim.contexts:
             c.features = self
             c.state.extra["excluded_ids"] = np.empty(0, np.int64)
 
-    # ------------------------------------------------------------------ hooks
-    def post_integrate(self, ctx, stage: int) -> None:
-        """The ``motion`` task: bodies at the stage's end time; damping and periodic
-        wrapping once the step is complete (last stage)."""
+    # ------------------------------------------------------------------ task bodies
+    def move_bodies(self, ctx, stage: int) -> None:
+        """The ``motion`` task: bodies at the stage's end time."""
         st = ctx.state
-        last = stage >= self.stages
-        t = st.time + (st.dt if last else 0.5 * st.dt)
-        if self.motion is not None:
-            self.motion.move(st, t)
-        if last:
-            if self.damping is not None:
-                self.damping.apply(st, st.dt)
-            if self.periodic is not None:
-                self.periodic.wrap(st)
+        self.motion.move(st, st.time + (st.dt if stage >= self.stages else 0.5 * st.dt))
 
-    def after_forces(self, ctx, part: str, stage: int) -> None:
-        if part == "interior" and self.periodic is not None:
-            self.periodic.image_forces(ctx)
-        if self.shifting is not None:
-            self.shifting.accumulate(ctx, part, stage)
+    def exclude(self, ctx) -> None:
+        """The ``exclude`` task: the backend's end-of-step check of this rank's rows; when it
+        finds a row out of bounds, the rows outside the domain (non-periodic axes) or, fluid
+        only, outside [rho_min, rho_max] are removed, counted in
+        ``state.extra["excluded_ids"]`` and listed in ``state.excluded`` (the rows are
+        scanned on the host only then: a device backend keeps them on the device otherwise),
+        and the rows left are checked again. The finding is ``state.check``
+        (`Simulation.check` reports it)."""
+        st = ctx.state
+        bad = ctx.compute.check(st, self.lo, self.hi)
+        if bad is not None and bad[1] in (2, 3):   # NaN (1) is the solver's to report
+            bad = self._remove(ctx, bad)
+        st.check, st.check_step = bad, st.step
 
-    def before_integrate(self, ctx, stage: int) -> None:
-        if self.shifting is not None:
-            self.shifting.before_integrate(ctx, stage)
-
-    def after_integrate(self, ctx, stage: int) -> None:
-        if self.shifting is not None:
-            self.shifting.after_integrate(ctx, stage)
-
-    def exclude(self, sim, bads: list) -> list:
-        """Remove particles outside the domain (non-periodic axes) or, fluid only, outside
-        [rho_min, rho_max]; count them in ``state.extra["excluded_ids"]``. Each rank's rows
-        are scanned on the host only when the backend's own end-of-step check finds a row out
-        of bounds (a device backend keeps its rows on the device otherwise). Raises
-        `NumericalError` once the run's exclusions pass ``domain.exclude_max_share`` of its
-        fluid particles. `bads`: each context's result of the backend's check; returned with
-        the ranks whose rows were removed checked again."""
-        if not self.exclude_outside:
-            return bads
+    def _remove(self, ctx, bad):
         ph = self.scene.physics
-        bads = list(bads)
-        for k, c in enumerate(sim.contexts):
-            st = c.state
-            bad = bads[k]
-            if bad is None or bad[1] not in (2, 3):   # NaN (1) is the solver's to report
+        st = ctx.state
+        ctx.compute.sync_host(st)    # the host rows current (a device backend), then removed
+        p = st.particles
+        x = np.asarray(p.pos)
+        out = np.zeros(p.n, bool)
+        for a in range(p.dim):
+            if self.periodic is not None and a in self.periodic.axes:
                 continue
-            sim.compute.sync_host(st)    # the host rows current (a device backend), then removed
-            p = st.particles
-            x = np.asarray(p.pos)
-            out = np.zeros(p.n, bool)
-            for a in range(p.dim):
-                if self.periodic is not None and a in self.periodic.axes:
-                    continue
-                out |= (x[:, a] < sim.lo[a]) | (x[:, a] > sim.hi[a])
-            cause = np.where(out, 2, 0)
-            bad_rho = (p.kind == 0) & ((p.rho < ph.rho_min) | (p.rho > ph.rho_max)) & ~out
-            cause[bad_rho] = 3
-            rows = np.nonzero(cause)[0]
-            if len(rows) == 0:
-                continue
-            for r in rows:
-                self.excluded.append((sim.step_count, sim.time, int(p.id[r]), int(cause[r])))
-            st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
-            st.particles = p.take(np.nonzero(cause == 0)[0])
-            sim.compute.prepare(st)
-            bads[k] = sim.compute.check(st, sim.lo, sim.hi)
+            out |= (x[:, a] < self.lo[a]) | (x[:, a] > self.hi[a])
+        cause = np.where(out, 2, 0)
+        bad_rho = (p.kind == 0) & ((p.rho < ph.rho_min) | (p.rho > ph.rho_max)) & ~out
+        cause[bad_rho] = 3
+        rows = np.nonzero(cause)[0]
+        if len(rows) == 0:
+            return bad
+        step, time = st.step + 1, st.time + st.dt    # as the solver counts them once the step ends
+        st.excluded = [(step, time, int(p.id[r]), int(cause[r])) for r in rows]
+        st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
+        st.particles = p.take(np.nonzero(cause == 0)[0])
+        ctx.compute.prepare(st)
+        return ctx.compute.check(st, self.lo, self.hi)
+
+    def collect_exclusions(self, sim) -> None:
+        """After a step: the rows its ``exclude`` tasks removed, in rank order, into
+        :attr:`excluded`; raises `NumericalError` once the run's exclusions pass
+        ``domain.exclude_max_share`` of its fluid particles."""
+        if K.EXCLUDE not in self.kinds:
+            return
+        for c in sim.contexts:
+            self.excluded += c.state.excluded
+            c.state.excluded = []
         self._check_share(sim)
-        return bads
 
     def _check_share(self, sim) -> None:
         """Stop (NumericalError, exit 1) when the exclusions of the whole run, every rank's,
@@ -172,7 +261,7 @@ class Features:
         rows = self.excluded
         if self.restored is not None:
             rows = self.restored + [r for r in rows if r[0] > self.restored_step]
-        if hasattr(sim.comm, "gather") and len(sim.comm.local_ranks) < sim.nranks:
+        if len(sim.comm.local_ranks) < sim.nranks:    # MPI: one rank per process
             parts = sim.comm.gather(rows)
             if parts is None:
                 return None

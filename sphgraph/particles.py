@@ -78,3 +78,13 @@ class Particles:
 
     def nbytes(self) -> int:
         return sum(v.nbytes for v in self.arrays().values())
+
+
+def in_id_order(parts: list) -> dict:
+    """Output arrays of several ranks (`ComputeBackend.host_arrays` dicts, in rank order) as
+    one set whose rows are in id order."""
+    a = parts[0] if len(parts) == 1 else {k: np.concatenate([r[k] for r in parts]) for k in parts[0]}
+    order = np.argsort(a["id"], kind="stable")
+    if not np.array_equal(order, np.arange(len(order))):
+        a = {k: v[order] for k, v in a.items()}
+    return a

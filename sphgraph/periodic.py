@@ -7,9 +7,9 @@ face interact with those near the other. Done as DualSPHysics does it, by images
 * **images** -- copies of the rows within reach of a periodic face, shifted by the
   period P = max - min towards the other face (corners too: an image of an image
   along a second axis). They form one more source set, part ``halo_3`` (summed
-  after interior, halo 1 and halo 2 in the fixed order), computed inside the
-  ``forces_interior`` task since they are made of the rank's own rows;
-* **wrapping** -- in the ``motion`` task at the end of the step, x <- min + (x - min) mod P;
+  after interior, halo 1 and halo 2 in the fixed order), made and computed by the
+  ``forces_images@s`` task (datum ``images``) from the rank's own rows;
+* **wrapping** -- the ``wrap`` task at the end of the step, x <- min + (x - min) mod P;
 * **ring** -- when the slab (split) axis is periodic, rank 0 and the last rank are
   neighbours: their halos and migrating rows cross the seam shifted by P; the
   task graph gets the extra messages (``Schedule.program(..., ring=True)``).
@@ -66,9 +66,6 @@ class Periodic:
         for a in self.axes:
             sim.lo[a] = self.lo[a] - self.reach
             sim.hi[a] = self.hi[a] + self.reach
-        if self.ring:
-            sim.schedule.validate(sim.nranks, sim.stages, sim.user_tasks, rebalance=sim.rebalance,
-                                  motion=True, ring=True)
 
     # ------------------------------------------------------------------ images
     def image_rows(self, pos):
@@ -101,9 +98,8 @@ class Periodic:
                     kind=kind[r])
 
     def image_forces(self, ctx) -> None:
-        """Force part ``halo_3``: the rank's rows against the images of its own rows."""
-        if not self.image_axes:
-            return
+        """The ``forces_images`` task, force part ``halo_3``: the rank's rows against the
+        images of its own rows (placed only when there are image axes)."""
         st = ctx.state
         p = st.particles
         halo = self.images(p.pos, p.vel, p.rho, p.kind)

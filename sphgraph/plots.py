@@ -352,11 +352,12 @@ def plot_breakdown(out_dir, path=None, timers: bool = True) -> str:
     return _save(fig, path)
 
 
-def plot_schedule_graph(schedule, ranks: int, stages: int, path) -> str:
-    """The multi-rank step graph: one column of tasks per rank, message edges across."""
+def plot_schedule_graph(schedule, ranks: int, stages: int, path, features=(), ring=False) -> str:
+    """The multi-rank step graph: one column of tasks per rank, message edges across
+    (`features`: a scene's feature task kinds, `ring`: its periodic split axis)."""
     from .graph.build import multi_rank_graph
     path = _check_path(path, "--plot")
-    programs = {r: schedule.program(r, ranks, stages) for r in range(ranks)}
+    programs = {r: schedule.program(r, ranks, stages, ring=ring, features=features) for r in range(ranks)}
     g = multi_rank_graph(programs)
     # one row per task name (rows of the fullest program), so ranks line up and the
     # collective, drawn once in the middle, has its row to itself

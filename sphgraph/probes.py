@@ -24,8 +24,9 @@ What is measured (DualSPHysics MeasureTool / ComputeForces conventions):
   summed over a cell grid of the fluid near the body (`sphgraph.probe_kernels`).
 
 `ProbeSampler.sample(sim)` takes the gathered particles (`Simulation.frame_arrays`, so any
-rank count works); `sphgraph.run` calls it after each step that is due and writes the
-series with `OutputWriter.write_group` at the end (and at each output frame).
+rank count works): `sphgraph.run` samples the initial state so; after each step the
+``probes`` task (`sample_step`, end of the step) gathers the rows on the root and samples
+those that are due. The series are written with `OutputWriter.write_group` at the end.
 """
 from __future__ import annotations
 
@@ -35,6 +36,8 @@ import math
 import numpy as np
 
 from .config import K_WENDLAND, KERNELS, P_AW, P_BW
+from .errors import InputError
+from .particles import in_id_order
 
 __all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor"]
 
@@ -139,6 +142,7 @@ class ProbeSampler:
         self.rows = {"probes": [], "forces": []}
         self.next = {"probes": 0.0, "forces": 0.0}
         self._last_time = {"probes": None, "forces": None}
+        self.shared = True   # every rank's `probes` task uses this one sampler (one process)
 
     @property
     def active(self) -> bool:
@@ -160,6 +164,23 @@ class ProbeSampler:
             self._advance_marks(sim.time)   # so every rank joins the same gathers
             return
         self.sample_arrays(sim.time, sim.step_count, arrays)
+
+    def sample_step(self, ctx) -> None:
+        """The ``probes`` task of one rank, at the end of a step (a collective): when a
+        sample is due at the step's end time, every rank's rows go to the root (rank 0),
+        which samples them in id order, as `Simulation.frame_arrays` gives them. Every
+        rank decides from the same time and marks before any rank joins the gather, and
+        only the root's task changes a shared sampler."""
+        st = ctx.state
+        t = st.time + st.dt   # as the solver counts it once the step ends
+        if not self.due(t):
+            return
+        rows = ctx.comm.gather(ctx.compute.host_arrays(st))
+        if ctx.rank != 0:
+            if not self.shared:   # MPI: each process keeps its own marks in step with the root's
+                self._advance_marks(t)
+            return
+        self.sample_arrays(t, st.step + 1, in_id_order(rows))
 
     def _advance_marks(self, t) -> None:
         s = self.spec

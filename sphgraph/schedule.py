@@ -17,8 +17,11 @@ Format (documented for users in docs/schedules.md):
 
 `order` is the issue order of one step. The span from the first to the last
 per-stage kind is the stage block: a Symplectic step issues it twice (stage 1
-and 2; dt tasks only in stage 1). Kinds a rank's role lacks (halos at the ends,
-everything multi-rank on one rank) are skipped.
+and 2; dt tasks only in stage 1, shifting, damping and wrapping only in the last).
+Kinds a rank's role lacks (halos at the ends, everything multi-rank on one rank) are
+skipped. A scene feature's task that `order` does not name goes where
+`graph.kinds.PLACEMENT` says (after the task it follows, e.g. `shift_apply` right after
+`integrate`), so a schedule written without it runs that feature; naming it places it.
 """
 from __future__ import annotations
 
@@ -30,9 +33,9 @@ from .balance import expected_form
 from .errors import InputError
 from .files import SCHEDULE_LIMIT, parse_toml, read_text
 from .graph.build import find_deadlock, multi_rank_graph, order_violations, rank_graph
-from .graph.kinds import LANES, TaskKind
+from .graph.kinds import CONDITIONAL, LANES, PLACEMENT, TaskKind
 from .graph.task import Task, UserTask
-from .graph.tasks import applicable, canonical_tasks
+from .graph.tasks import applicable, canonical_tasks, in_stage
 
 TOP_KEYS = ("format", "name", "description", "order", "halo_order", "lanes", "rebalance")
 REBALANCE_KEYS = {"every": int, "threshold": float, "policy": str}
@@ -146,16 +149,31 @@ class Schedule:
         return label
 
     def program(self, rank: int, nranks: int, stages: int, user_tasks=(), rebalance=False,
-                motion=False, ring=False) -> list[Task]:
+                motion=False, ring=False, features=()) -> list[Task]:
         """The ordered task instances of one rank (skipping kinds its role lacks;
-        `rebalance` / `motion` place those conditional kinds; `ring`: the slab chain is
-        closed, the periodic split axis of sphgraph.periodic)."""
-        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance, motion,
-                            ring)[0]
+        `rebalance` places that conditional kind, `features` the scene features' kinds
+        (`sphgraph.features.Features.kinds`; `motion` adds the ``motion`` kind); `ring`:
+        the slab chain is closed, the periodic split axis of sphgraph.periodic)."""
+        return self._expand(rank, nranks, stages, {u.name: u for u in user_tasks}, rebalance,
+                            _features(features, motion), ring)[0]
 
-    def _expand(self, rank, nranks, stages, users: dict, rebalance, motion=False, ring=False):
-        from .graph.tasks import make_task
+    def labels(self, features=()) -> list[str]:
+        """The order's labels with the halo order applied and the tasks of `features` that
+        it does not name placed (`graph.kinds.PLACEMENT`)."""
         labels = [self._swapped(x) for x in self.order]
+        for kind, (where, anchors) in PLACEMENT.items():
+            if kind not in features or kind.label in labels:
+                continue
+            at = [labels.index(a) for a in anchors if a in labels]
+            if where == "end" or not at:   # no anchor: the validator names what is missing
+                labels.append(kind.label)
+            else:
+                labels.insert(max(at) + 1 if where == "after" else min(at), kind.label)
+        return labels
+
+    def _expand(self, rank, nranks, stages, users: dict, rebalance, features=frozenset(), ring=False):
+        from .graph.tasks import make_task
+        labels = self.labels(features)
 
         def per_stage(label):
             if label in users:
@@ -181,21 +199,24 @@ class Schedule:
                                      lane=self.lanes.get(lab, u.lane), fn=u.fn))
                     continue
                 kind = TaskKind.from_label(lab)
-                if (kind is TaskKind.REBALANCE and not rebalance) or (kind is TaskKind.MOTION and not motion):
+                if kind is TaskKind.REBALANCE and not rebalance:
+                    continue
+                if kind in CONDITIONAL and kind is not TaskKind.REBALANCE and kind not in features:
                     continue
                 if not applicable(kind, rank, nranks, ring):
                     continue
-                if not kind.per_stage and s not in (None, 1):
-                    continue  # dt tasks: once per step
+                if s is not None and not in_stage(kind, s, stages):
+                    continue  # dt tasks: once per step; shifting, damping, wrap: last stage
                 prog.append(make_task(kind, s if kind.per_stage else None, rank, nranks,
                                       lane=self.lanes.get(lab), ring=ring))
         return prog, labels
 
     def canonical(self, rank, nranks, stages, user_tasks=(), rebalance=False, motion=False,
-                  ring=False) -> list[Task]:
+                  ring=False, features=()) -> list[Task]:
         """The reference order with user tasks inserted where the schedule puts them."""
-        prog = self.program(rank, nranks, stages, user_tasks, rebalance, motion, ring)
-        builtin = canonical_tasks(rank, nranks, stages, rebalance, motion, ring)
+        features = _features(features, motion)
+        prog = self.program(rank, nranks, stages, user_tasks, rebalance, ring=ring, features=features)
+        builtin = canonical_tasks(rank, nranks, stages, rebalance, features, ring)
         users = [t for t in prog if not isinstance(t.kind, TaskKind)]
         out = list(builtin)
         for u in users:
@@ -207,22 +228,24 @@ class Schedule:
 
     # ------------------------------------------------------------------ validation
     def validate(self, ranks: int = 1, stages: int = 1, user_tasks=(), rebalance=False, motion=False,
-                 ring=False) -> None:
+                 ring=False, features=()) -> None:
         """Prove the schedule for `ranks` ranks; raise ScheduleError listing every problem."""
+        features = _features(features, motion)
         src = self.source
         problems = _name_problems(src, self.order, self.lanes, {u.name for u in user_tasks})
         if problems:
             raise ScheduleError(problems)
         programs = {}
         for r in range(ranks):
-            prog = self.program(r, ranks, stages, user_tasks, rebalance, motion, ring)
+            prog = self.program(r, ranks, stages, user_tasks, rebalance, ring=ring, features=features)
             programs[r] = prog
             names = [t.name for t in prog]
-            for t in canonical_tasks(r, ranks, stages, rebalance, motion, ring):
+            for t in canonical_tasks(r, ranks, stages, rebalance, features, ring):
                 if t.name not in names:
                     problems.append(f"{src}: order: missing task {t.label!r} (needed as {t.name} on rank {r} "
                                     f"of {ranks})")
-            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance, motion, ring))
+            g = rank_graph(self.canonical(r, ranks, stages, user_tasks, rebalance, ring=ring,
+                                          features=features))
             for v in order_violations(g, names):
                 problems.append(f"{src}: order: rank {r}: {v}")
         problems = list(dict.fromkeys(problems))
@@ -232,9 +255,11 @@ class Schedule:
         if cyc:
             raise ScheduleError([f"{src}: deadlock on {ranks} ranks: {cyc}"])
 
-    def describe(self, ranks=1, stages=1, rank=0) -> str:
-        """Ordered tasks per lane for one rank (`sphgraph schedule show`)."""
-        prog = self.program(rank, ranks, stages, rebalance=bool(self.rebalance))
+    def describe(self, ranks=1, stages=1, rank=0, features=(), ring=False) -> str:
+        """Ordered tasks per lane for one rank (`sphgraph schedule show`); `features`: the
+        feature kinds of a scene (`sphgraph.features.task_kinds`)."""
+        prog = self.program(rank, ranks, stages, rebalance=bool(self.rebalance), ring=ring,
+                            features=features)
         lines = [f"schedule {self.name} ({self.source}): rank {rank} of {ranks}, {stages} force stage(s)"]
         if self.description:
             lines.append(f"  {self.description}")
@@ -243,6 +268,14 @@ class Schedule:
             lines.append(f"  [{lane}]")
             lines.extend(f"    {x}" for x in ts or ["(none)"])
         return "\n".join(lines)
+
+
+def _features(features, motion: bool = False) -> frozenset:
+    """The feature kinds to place: `features` (kinds or labels), ``motion`` added when asked."""
+    out = {TaskKind.from_label(k) if isinstance(k, str) else k for k in features}
+    if motion:
+        out.add(TaskKind.MOTION)
+    return frozenset(out)
 
 
 def _name_problems(src: str, order, lanes, users: set) -> list[str]:

@@ -36,6 +36,7 @@ class RankContext:
     balancer: object = None
     scene: object = None
     halo_transport: str = "staged"   # the comm backend's: "staged" (through the host) or "ipc"
+    features: object = None    # sphgraph.features.Features: the bodies of the feature tasks
 
     def force_buffer(self, name: str):
         """A zeroed partial force buffer `name` for a user task that accumulates into
@@ -125,17 +126,19 @@ class Scheduler:
     """Runs steps of `schedule` for the ranks a comm backend drives."""
 
     def __init__(self, schedule: Schedule, comm, contexts: list[RankContext], stages: int,
-                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0, motion: bool = False,
+                 user_tasks=(), rebalance: bool = False, t_origin: float = 0.0, features=(),
                  ring: bool = False):
+        """`features`: the scene features' task kinds (`sphgraph.features.task_kinds`)."""
         self.schedule = schedule
         self.comm = comm
         self.contexts = contexts
         lanes = bool(contexts) and contexts[0].compute.uses_lanes
 
         def program(rank, reb):
-            prog = schedule.program(rank, comm.size, stages, user_tasks, reb, motion, ring)
+            prog = schedule.program(rank, comm.size, stages, user_tasks, reb, ring=ring, features=features)
             if lanes:
-                graph = rank_graph(schedule.canonical(rank, comm.size, stages, user_tasks, reb, motion, ring))
+                graph = rank_graph(schedule.canonical(rank, comm.size, stages, user_tasks, reb, ring=ring,
+                                                      features=features))
                 prog = lane_program(prog, graph)
             return prog
 

@@ -17,6 +17,7 @@ from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import Slabs, choose_axis, equal_cuts, split
 from .errors import CAUSES, CommError, DiskFullError, InputError, NumericalError, SphgraphError
+from .particles import in_id_order
 from .registry import get
 from .scene import Scene
 from .schedule import Schedule
@@ -62,10 +63,11 @@ class Simulation:
     def __init__(self, scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="production",
                  precision=None, dp=None, end_time=None, user_tasks=(), fixed_dt=None,
                  comm_options=None, decomposition_axis=None, balance=None, particles=None, cuts=None,
-                 invariants=True):
+                 invariants=True, sample=False):
         """`particles` (optional): start from these particles instead of `scene.build_particles`:
         a `Particles` set (decomposed here), or one block per rank with their slab `cuts`
-        (kept when the rank count matches, re-decomposed otherwise) -- a restart."""
+        (kept when the rank count matches, re-decomposed otherwise) -- a restart. `sample`:
+        sample the scene's `[probes]` / `[forces]` (the `probes` task; `probe_sampler`)."""
         if not isinstance(scene, Scene):
             scene = Scene.from_toml(scene)
         if dp is not None or end_time is not None:
@@ -99,13 +101,12 @@ class Simulation:
         self.rebalance = (self.nranks > 1 and self.balance_cfg.enabled
                           and "rebalance" in self.schedule.order)
         from .features import Features
-        self.features = Features(scene)  # moving bodies, damping, periodic...: only what the scene asks
-        if phys.boundary != "dbc":   # mDBC: a user task before each force stage (or one line, exit 2)
-            from .backends.compute.cpu_mdbc import attach
-            self.schedule, self.user_tasks = attach(scene, compute_cls.name, self.nranks, self.schedule,
-                                                    self.user_tasks)
+        # mDBC, periodic images, shifting, moving bodies...: only what the scene asks, as tasks
+        self.features = Features(scene, sample=sample)
+        self.features.check_backend(compute_cls, self.nranks)
+        self.probe_sampler = self.features.probes   # its samples go into checkpoints and come back
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
-                               motion=self.features.motion_task)
+                               features=self.features.kinds)
         self.compute = compute_cls()
         # set-up seconds by phase: scene (the particle count, constants), particles (the
         # rows on the host), state (rank states and the backend's prepare: the upload on a
@@ -165,15 +166,17 @@ class Simulation:
         if self.rebalance and self.balance_cfg.policy == "memory":
             self._attach_capacity(scene)
         t0 = self._phase("state", t0)
-        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
-                                   rebalance=self.rebalance, motion=self.features.motion_task,
-                                   ring=self.features.ring(self.axis, self.nranks))
         self.lo = np.asarray(scene.domain_min, float)
         self.hi = np.asarray(scene.domain_max, float)
         self.step_count = 0
         self.time = 0.0
-        if self.features.active:
-            self.features.attach(self, particles)
+        self.features.attach(self, particles)   # its task kinds for the split axis now known
+        ring = self.features.ring(self.axis, self.nranks)
+        if ring:   # the end ranks are neighbours: more messages to prove
+            self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
+                                   features=self.features.kinds, ring=True)
+        self.scheduler = Scheduler(self.schedule, self.comm, self.contexts, self.stages, self.user_tasks,
+                                   rebalance=self.rebalance, features=self.features.kinds, ring=ring)
         from .invariants import Invariants
         self.invariants = Invariants(self) if invariants else None
         self._phase("rest", t0)
@@ -239,10 +242,11 @@ class Simulation:
 
     def check(self) -> None:
         """Stop on NaN, a particle outside the domain or a density out of bounds."""
-        # one backend check a rank (a device backend's one wait); [domain] exclude_outside
-        # removes and counts the rows it finds out of bounds, checking those ranks again
-        bads = self.features.exclude(self, [self.compute.check(c.state, self.lo, self.hi)
-                                            for c in self.contexts])
+        # one backend check a rank (a device backend's one wait): with [domain] exclude_outside
+        # the step's `exclude` task ran it (and removed the rows out of bounds), else here
+        bads = [c.state.check if c.state.check_step == c.state.step
+                else self.compute.check(c.state, self.lo, self.hi) for c in self.contexts]
+        self.features.collect_exclusions(self)
         found = None
         for c, bad in zip(self.contexts, bads):
             if bad is None and self.invariants is not None:
@@ -264,16 +268,7 @@ class Simulation:
         """All ranks' particles in id order (on the root; None elsewhere)."""
         per = {c.rank: self.compute.host_arrays(c.state) for c in self.contexts}
         rows = self.comm.gather_rows(per)
-        if rows is None:
-            return None
-        if len(rows) == 1:
-            a = rows[0]
-        else:
-            a = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
-        order = np.argsort(a["id"], kind="stable")
-        if not np.array_equal(order, np.arange(len(order))):
-            a = {k: v[order] for k, v in a.items()}
-        return a
+        return None if rows is None else in_id_order(rows)
 
     def root_attrs(self, backend: str, comm: str) -> dict:
         return {"scene": self.scene.text, "version": __version__, "backend": backend, "comm": comm,
@@ -309,11 +304,9 @@ def run(scene, *, backend="numba-cpu", comm="single", ranks=1, schedule="product
                      particles=None if saved is None else ck.blocks_for(saved, PRECISIONS[precision]),
                      cuts=None if saved is None else saved.cuts,
                      decomposition_axis=None if saved is None or saved.meta["axis"] < 0
-                     else "xyz"[saved.meta["axis"]], invariants=invariants)
-    from .probes import ProbeSampler   # [probes]/[forces] -> /probes, /forces (validated before any output)
+                     else "xyz"[saved.meta["axis"]], invariants=invariants, sample=write_output)
     sc = sim.scene
-    sampler = ProbeSampler(sc) if write_output and ("probes" in sc.extra or "forces" in sc.extra) else None
-    sim.probe_sampler = sampler   # its samples go into checkpoints (ck.save) and come back on restart
+    sampler = sim.probe_sampler   # [probes]/[forces] -> /probes, /forces (the probes task samples each step)
     if saved is not None:
         ck.check_scene(saved, sc)
         ck.restore(sim, saved)
@@ -453,13 +446,11 @@ class _Run:
         t_end, interval = sim.scene.end_time, sim.scene.output_interval
         if self.write_output and self.saved is None:
             self.save_frame()
-        if sampler is not None:
+        if sampler is not None:   # the initial state; each step's own task samples its end
             sampler.sample(sim)
         t0 = time.perf_counter()
         while sim.time < t_end - 1e-12 and (self.max_steps is None or sim.step_count < self.max_steps):
             sim.step()
-            if sampler is not None:
-                sampler.sample(sim)    # at its interval; gathers on every rank, samples on the root
             if sim.step_count == self.start_step + 1:
                 self.compile_s = time.perf_counter() - t0
                 prog.note(f"first step {self.compile_s:.2f} s (includes numba compilation)")

@@ -102,6 +102,12 @@ class RankState:
     # the sorted rows): the step it ran in, None once send_displaced changed the rows
     cells_step: int | None = None
     sort_perm: np.ndarray = None                    # that build's order: sorted row i = row sort_perm[i]
+    # the end-of-step check of the `exclude` task (sphgraph.features): its (row, cause) or None,
+    # the step it ran in, and the (step, time, id, cause) rows it removed, until the solver
+    # collects them
+    check: tuple | None = None
+    check_step: int = -1
+    excluded: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)      # data of user-defined tasks
 
     def __post_init__(self):

@@ -102,7 +102,7 @@ def validate_damping(c, raw, dim: int) -> list:
 
 
 class Damping:
-    """Velocity relaxation zones (applied by the ``motion`` task, last stage of a step)."""
+    """Velocity relaxation zones (the ``damping`` task, last stage of a step)."""
 
     def __init__(self, entries: list):
         self.zones = [(_AXES.index(e["axis"]), e["start"], e["end"], e["overlimit"], e["redumax"])

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sphgraph import InputError, Scene, Simulation
+from sphgraph.graph.kinds import TaskKind
 
 
 def tank(mode="full", tfs=1.5, integrator="verlet", **extra):
@@ -57,12 +58,15 @@ def test_bad_key_on_the_command_line_is_one_line_exit_2(tmp_path):
 
 
 def test_off_costs_nothing_and_changes_nothing():
-    """shifting = "none" is the scene without the key: no shifting on the ranks, the same
-    step graph, bit-identical particles."""
+    """shifting = "none" is the scene without the key: no shifting task, the same step
+    graph as without the key (exclusion's end-of-step task only, on by default), bit-identical
+    particles."""
     out = {}
     for mode in (None, "none"):
         sim = Simulation(tank(mode))
-        assert sim.features.shifting is None and not sim.features.motion_task   # no extra task
+        assert sim.features.shifting is None and sim.features.kinds == {TaskKind.EXCLUDE}
+        assert [t.name for t in sim.scheduler.programs[0]] == [
+            "build_cells", "forces_interior@1", "dt_local", "dt_allreduce", "integrate@1", "exclude"]
         for _ in range(20):
             sim.step()
         assert "shift_parts" not in sim.contexts[0].state.extra
@@ -96,9 +100,9 @@ def _shift_only(sc, iters, speed, dt):
     p0 = st.particles.pos[np.argsort(st.particles.id)].copy()
     for _ in range(iters):
         sim.compute.build_cells(st)
-        sim.features.after_forces(ctx, "interior", 1)
-        sim.features.before_integrate(ctx, 1)
-        sim.features.after_integrate(ctx, 1)
+        sim.features.shifting.sums(ctx, "interior")
+        sim.features.shifting.displacement(ctx)
+        sim.features.shifting.apply(ctx)
     p = st.particles
     return p0, p.pos[np.argsort(p.id)]
 

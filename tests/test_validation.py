@@ -222,11 +222,12 @@ layers = 3
 
 
 def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, capsys):
-    """`[physics] boundary = "mdbc-noslip"` through `sphgraph run`: the same particles, bit for
-    bit, as the user task the validation runner added before the key existed (explicit
-    `mdbc_tasks` + `mdbc_schedule` on the DBC scene) and as the runner's `boundary` param;
-    unsupported runs are refused at start (exit 2, one line, nothing written)."""
-    from sphgraph.backends.compute.cpu_mdbc import mdbc_schedule, mdbc_tasks
+    """`[physics] boundary = "mdbc-noslip"` through `sphgraph run` (the builder's `mdbc` task):
+    the same particles, bit for bit, as a user task with the same body placed by a schedule
+    on the DBC scene, and as the runner's `boundary` param; unsupported runs are refused at
+    start (exit 2, one line, nothing written)."""
+    from sphgraph.features import Mdbc
+    from sphgraph.graph.task import UserTask
     from sphgraph.io import read_frame
     from sphgraph.solver import Simulation
     from sphgraph.validation.cases import _sim
@@ -237,7 +238,11 @@ def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, caps
     got = read_frame(tmp_path / "o")
     assert got["step"] == steps
     dbc = Scene.from_dict(Scene.from_toml(path).to_dict() | {"physics": {"boundary": "dbc"}})
-    old = Simulation(dbc, schedule=mdbc_schedule(), user_tasks=mdbc_tasks(dbc, noslip=True), invariants=False)
+    m = Mdbc(dbc, noslip=True)
+    user = UserTask("user_mdbc", lambda ctx, task: m.apply(ctx), reads=("particles", "cells"),
+                    writes=("particles", "cells"), per_stage=True)
+    order = ["build_cells", "user_mdbc", "forces_interior", "dt_local", "dt_allreduce", "integrate"]
+    old = Simulation(dbc, schedule={"format": 1, "order": order}, user_tasks=[user], invariants=False)
     runner = _sim(dbc, "numba-cpu", None, boundary="mdbc-noslip")
     plain = Simulation(dbc, invariants=False)
     for s in (old, runner, plain):

@@ -187,6 +187,10 @@ class MockEndpoint:
     def allgather(self, x) -> list:
         return self._coll().exchange(self.rank, x)
 
+    def gather(self, x) -> list | None:
+        out = self._coll().exchange(self.rank, x)
+        return out if self.rank == 0 else None
+
 
 def _reduce(vals, op):
     if op in ("min", min):

@@ -218,6 +218,9 @@ class _Endpoint:
     def allgather(self, x) -> list:
         return self.b.collective(self.b.comm.allgather, x)
 
+    def gather(self, x) -> list | None:
+        return self.b.collective(self.b.comm.gather, x, root=0)
+
 
 @register("comm", "mpi")
 class MPIComm(CommBackend):

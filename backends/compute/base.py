@@ -16,7 +16,11 @@ class ComputeBackend:
     name = "base"
     default_precision = "float64"
     device_resident = False   # rows live on a device between steps (halos can go device to device)
-    uses_lanes = False        # tasks run on lanes (numba-cuda: a CUDA stream each; sphgraph.scheduler)
+    uses_lanes = False        # the scheduler wraps each task in lane_begin / lane_end (streams)
+    # the optional scene features it runs (sphgraph.features refuses the others at start-up):
+    # "shifting" (shift_part, shift_displacement, shift_apply), "mdbc" (mdbc), "riemann",
+    # "diffusion_time" (physics options of the force and integration kernels)
+    scene_features: frozenset = frozenset()
 
     @classmethod
     def unavailable(cls) -> str | None:
@@ -159,9 +163,35 @@ class ComputeBackend:
         raise NotImplementedError
 
 
-# particle shifting (sphgraph.shifting): partial sums per source set, added in this order.
-# A backend supports shifting when it has shift_part(state, part, mode),
-# shift_displacement(state, coefumagn, tfs, coeftfs, maxdist) and shift_apply(state).
+    # -- scene features (sphgraph.features), for a backend that lists them in scene_features --
+    def shift_part(self, state, part: str, mode: int) -> None:
+        """Particle shifting's partial sums of source set `part` ("interior", "halo_1",
+        "halo_2", "halo_3": the periodic images), kept until `shift_displacement`."""
+        raise NotImplementedError
+
+    def shift_displacement(self, state, coefumagn, tfs, coeftfs, maxdist) -> None:
+        """The parts summed in the order of `SHIFT_PARTS` and turned into each fluid row's
+        displacement (sphgraph.physics.shifting), from the rows' current velocities."""
+        raise NotImplementedError
+
+    def shift_apply(self, state) -> None:
+        """The displacements added to the positions."""
+        raise NotImplementedError
+
+    def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
+        """mDBC: density (and, `noslip`, velocity) of the boundary rows from the fluid at
+        their ghost nodes (mirrored across the scene's interface `boxes`,
+        sphgraph.physics.mdbc), and their pressures."""
+        raise NotImplementedError
+
+    def lane_begin(self, state, task, step) -> None:
+        """Before a task body, when `uses_lanes` (see sphgraph.scheduler.LaneStep)."""
+
+    def lane_end(self, state, task, step) -> None:
+        """After a task body, when `uses_lanes`."""
+
+
+# particle shifting (sphgraph.shifting): partial sums per source set, added in this order
 SHIFT_PARTS = ("interior", "halo_1", "halo_2", "halo_3")
 
 def dt_from_terms(a2max: float, v2max: float, viscmax: float, h: float, c0: float, cfl: float) -> float:

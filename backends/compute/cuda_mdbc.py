@@ -17,7 +17,7 @@ from numba import cuda
 from sphgraph.cells import cell_window
 from sphgraph.config import O_KERNEL, P_MASS_F, P_SUPPORT2
 from sphgraph.physics.eos import tait
-from sphgraph.physics.mdbc import ghost_add, ghost_positions, ghost_value, interface_boxes
+from sphgraph.physics.mdbc import ghost_add, ghost_positions, ghost_value
 
 from . import cuda_kernels as CK
 
@@ -84,38 +84,35 @@ def build(dtype) -> types.SimpleNamespace:
     return _BUILT[dt.str]
 
 
-def ghost_table(scene, particles) -> np.ndarray:
+def ghost_table(particles, boxes) -> np.ndarray:
     """Ghost nodes by particle id (3 float64 each, flat) of the boundary rows of `particles`."""
     p = particles
     rows = np.nonzero(p.kind != 0)[0]
     table = np.zeros((max(int(p.id.max()) + 1, 1) if p.n else 1, 3))
     if len(rows):
-        table[p.id[rows], :p.dim] = ghost_positions(np.asarray(p.pos[rows], np.float64), interface_boxes(scene))
+        table[p.id[rows], :p.dim] = ghost_positions(np.asarray(p.pos[rows], np.float64), boxes)
     return table.ravel()
 
 
-def mdbc_tasks(scene, noslip: bool = False, det_min: float = 1e-3):
-    """cpu_mdbc.mdbc_tasks for numba-cuda (one rank): the `mdbc` user task before each force
-    stage, on the device rows."""
-    from sphgraph.graph.task import UserTask
+class CudaMdbc:
+    """`ComputeBackend.mdbc` on the device rows (mixed into NumbaCUDA): the ghost table is
+    built from the host rows' boundary positions on first use (boundary particles do not
+    move: no [[motion]] bodies with mDBC) and kept on the device."""
 
-    def body(ctx, task):
-        st = ctx.state
-        dv = st.extra["dev"]
+    def mdbc(self, state, boxes, det_min, noslip) -> None:
+        dv = state.extra["dev"]
         if dv.n <= dv.nf:
             return
-        tab = st.extra.get("mdbc_ghost")
-        if tab is None:     # the host rows: the boundary particles' start positions
-            tab = st.extra["mdbc_ghost"] = cuda.to_device(ghost_table(scene, st.particles))
+        tab = state.extra.get("mdbc_ghost")
+        if tab is None:
+            tab = state.extra["mdbc_ghost"] = cuda.to_device(ghost_table(state.particles, boxes))
         A = dv.A()
         g = dv.grid
         o, dims, axes = g["origin"], g["dims"], g["axes"]
-        k = ctx.compute._on(st, build(dv.dtype))
+        k = self._on(state, build(dv.dtype))
         k.k_mdbc[CK.blocks(dv.n - dv.nf), CK.BLOCK](
             A["px"], A["py"], A["pz"], tab, A["id"], A["vx"], A["vy"], A["vz"], A["rho"], A["press"], dv.nf, dv.n,
             A["start"], float(o[0]), float(o[1]), float(o[2]), float(g["inv"]), int(dims[0]), int(dims[1]),
-            int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(g["reach"]), dv.prm_d(st), dv.dim,
-            int(st.opt[O_KERNEL]), float(det_min), bool(noslip))
+            int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(g["reach"]), dv.prm_d(state), dv.dim,
+            int(state.opt[O_KERNEL]), float(det_min), bool(noslip))
         dv.host_stale = True
-
-    return [UserTask("mdbc", body, reads=("particles", "cells"), writes=("particles",), per_stage=True)]

@@ -27,6 +27,7 @@ def _threads(n: int, rows_per_thread: int) -> None:
 @register("compute", "numba-cpu")
 class NumbaCPU(ComputeBackend):
     default_precision = "float64"
+    scene_features = frozenset({"shifting", "mdbc", "riemann", "diffusion_time"})
 
     def device_name(self) -> str:
         return f"cpu ({numba.config.NUMBA_NUM_THREADS} threads)"
@@ -250,6 +251,23 @@ class NumbaCPU(ComputeBackend):
         from . import cpu_shifting as S
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         S.shift_add(state.particles.pos, state.extra.pop("shift"))
+
+    def mdbc(self, state, boxes, det_min, noslip) -> None:
+        from sphgraph.physics.mdbc import ghost_positions
+
+        from .cpu_mdbc import mdbc_boundary
+        p = state.particles
+        rows = np.nonzero(p.kind != 0)[0]
+        if len(rows) == 0:
+            return
+        ghost = ghost_positions(np.asarray(p.pos[rows], np.float64), boxes)
+        rho_out = np.empty(len(rows))
+        vel_out = np.zeros((len(rows), p.dim))
+        mdbc_boundary(rows, ghost, p.pos, p.vel, p.rho, p.kind, *state.cells.kernel_args(), state.prm,
+                      state.opt, det_min, noslip, rho_out, vel_out)
+        p.rho[rows] = rho_out
+        p.vel[rows] = vel_out
+        K.pressure_into(p.rho, state.prm, state.press)
 
     def check(self, state, lo, hi):
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)

@@ -34,6 +34,7 @@ from .cuda_cells import CudaCells
 from .cuda_force_dispatch import CudaForceDispatch
 from .cuda_halo_dispatch import CudaHaloDispatch
 from .cuda_lanes import CudaLanes, per_thread_default_stream
+from .cuda_mdbc import CudaMdbc
 from .cuda_memory import COUNTERS, dev_array
 from .cuda_rows import CudaRows
 from .cuda_shifting import CudaShifting
@@ -65,12 +66,13 @@ def _select_device():
 
 @register("compute", "numba-cuda")
 class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, CudaForceDispatch,
-                CudaStepDispatch, CudaBalance, CudaShifting, ComputeBackend):
+                CudaStepDispatch, CudaBalance, CudaShifting, CudaMdbc, ComputeBackend):
     """The ComputeBackend on one GPU a rank; its methods come from the mixins above, one
     module each (see the module doc)."""
 
     default_precision = "float32"
     device_resident = True
+    scene_features = frozenset({"shifting", "mdbc", "riemann", "diffusion_time"})
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task

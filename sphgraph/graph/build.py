@@ -1,6 +1,7 @@
 """Dependency graphs: per rank, derived from declared data access; and across ranks.
 
-Per-rank rule (sequential task flow over the canonical order):
+Per-rank rule (sequential task flow over the canonical order; a group name such as
+"particles" stands for each of its members, `task.GROUPS`):
   read        after the last write of that datum (read-after-write) and after
               every accumulation since (the reader sees the complete sum);
   write       after the last write (WAW), every read since (WAR) and every
@@ -17,7 +18,7 @@ from __future__ import annotations
 
 import networkx as nx
 
-from .task import Task
+from .task import GROUPS, Task, fine
 
 
 def rank_graph(tasks: list[Task]) -> nx.DiGraph:
@@ -30,36 +31,50 @@ def rank_graph(tasks: list[Task]) -> nx.DiGraph:
     def dep(u, v, datum, why):
         if u is None or u == v:
             return
-        if g.has_edge(u.name, v.name):
-            g.edges[u.name, v.name]["reason"] += f"; {datum}: {why}"
-        else:
-            g.add_edge(u.name, v.name, reason=f"{datum}: {why}")
+        if not g.has_edge(u.name, v.name):
+            g.add_edge(u.name, v.name, why=[])
+        g.edges[u.name, v.name]["why"].append((datum, why))
 
     for t in tasks:
         g.add_node(t.name, task=t)
-        for d in t.reads:
+        reads, writes, accumulates = fine(t.reads), fine(t.writes), fine(t.accumulates)
+        for d in reads:
             dep(last_write.get(d), t, d, "read after write")
             for a in accums.get(d, ()):
                 dep(a, t, d, "read after accumulate")
-        for d in t.accumulates:
+        for d in accumulates:
             dep(last_write.get(d), t, d, "accumulate after write")
             for r in readers.get(d, ()):
                 dep(r, t, d, "accumulate after read")
-        for d in t.writes:
+        for d in writes:
             dep(last_write.get(d), t, d, "write after write")
             for r in readers.get(d, ()):
                 dep(r, t, d, "write after read")
             for a in accums.get(d, ()):
                 dep(a, t, d, "write after accumulate")
-        for d in t.reads:
+        for d in reads:
             readers.setdefault(d, []).append(t)
-        for d in t.accumulates:
+        for d in accumulates:
             accums.setdefault(d, []).append(t)
-        for d in t.writes:
+        for d in writes:
             last_write[d] = t
             readers[d] = []
             accums[d] = []
+    for _, _, data in g.edges(data=True):
+        data["reason"] = _reason(data.pop("why"))
     return g
+
+
+def _reason(why: list) -> str:
+    """"datum: why" joined by "; ", a group's members for the same reason named by the group."""
+    out = list(why)
+    for group, members in GROUPS.items():
+        for w in dict.fromkeys(w for _, w in why):
+            if all((m, w) in out for m in members):
+                i = out.index((members[0], w))
+                out = [x for x in out if not (x[1] == w and x[0] in members)]
+                out.insert(min(i, len(out)), (group, w))
+    return "; ".join(f"{d}: {w}" for d, w in out)
 
 
 def lane_edges(program: list[Task], graph: nx.DiGraph) -> list[tuple[str, str]]:
@@ -76,7 +91,7 @@ def lane_edges(program: list[Task], graph: nx.DiGraph) -> list[tuple[str, str]]:
     out = {(u, v) for u, v in graph.edges() if u in pos and v in pos and lane[u] != lane[v]}
     for i, a in enumerate(program):
         for b in program[i + 1:]:
-            if a.lane != b.lane and set(a.accumulates) & set(b.accumulates):
+            if a.lane != b.lane and set(fine(a.accumulates)) & set(fine(b.accumulates)):
                 out.add((a.name, b.name))
     bad = [e for e in out if pos[e[0]] > pos[e[1]]]
     if bad:    # a validated schedule never issues a consumer before its producer

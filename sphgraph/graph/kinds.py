@@ -24,8 +24,21 @@ class TaskKind(Enum):
     DT_LOCAL = ("dt_local", "PU", "compute", False)
     DT_ALLREDUCE = ("dt_allreduce", "SynchroDt", "comm", False)
     INTEGRATE = ("integrate", "PU", "compute", True)
-    MOTION = ("motion", "Motion", "compute", True)    # conditional: scenes with moving bodies etc.
     REBALANCE = ("rebalance", "Balancing", "compute", False)
+    # scene features (sphgraph.features): placed only when the scene asks for them
+    MDBC = ("mdbc", "MDBC", "compute", True)
+    FORCES_IMAGES = ("forces_images", "FC", "compute", True)
+    SHIFT_INTERIOR = ("shift_interior", "Shifting", "compute", True)
+    SHIFT_IMAGES = ("shift_images", "Shifting", "compute", True)
+    SHIFT_HALO_1 = ("shift_halo_1", "Shifting", "compute", True)
+    SHIFT_HALO_2 = ("shift_halo_2", "Shifting", "compute", True)
+    SHIFT_DISPLACEMENT = ("shift_displacement", "Shifting", "compute", True)
+    SHIFT_APPLY = ("shift_apply", "Shifting", "compute", True)
+    MOTION = ("motion", "Motion", "compute", True)
+    DAMPING = ("damping", "Damping", "compute", True)
+    WRAP = ("wrap", "Periodic", "compute", True)
+    EXCLUDE = ("exclude", "Exclusion", "compute", False)
+    PROBES = ("probes", "Probes", "compute", False)
 
     def __init__(self, label, timer, lane, per_stage):
         self.label = label
@@ -50,10 +63,41 @@ NEEDS_NEIGHBOUR = {
     TaskKind.SEND_DISPLACED: 0, TaskKind.RECV_DISPLACED: 0, TaskKind.SEND_EDGES: 0,
     TaskKind.RECV_HALO_1: 1, TaskKind.FORCES_HALO_1: 1,
     TaskKind.RECV_HALO_2: 2, TaskKind.FORCES_HALO_2: 2,
+    TaskKind.SHIFT_HALO_1: 1, TaskKind.SHIFT_HALO_2: 2,
 }
-# Kinds placed only when the run asks for them (a flag of Schedule.program):
-# rebalance on check steps, motion when the scene has moving bodies, damping
-# zones or periodic axes (sphgraph.features).
-CONDITIONAL = (TaskKind.REBALANCE, TaskKind.MOTION)
+# The scene features' kinds: placed only when the run's feature set names them
+# (`sphgraph.features.Features.kinds`, an argument of Schedule.program).
+FEATURES = (TaskKind.MDBC, TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES,
+            TaskKind.SHIFT_HALO_1, TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT,
+            TaskKind.SHIFT_APPLY, TaskKind.MOTION, TaskKind.DAMPING, TaskKind.WRAP,
+            TaskKind.EXCLUDE, TaskKind.PROBES)
+# Kinds placed only when the run asks for them: rebalance on check steps, a feature's
+# tasks when the scene has the feature
+CONDITIONAL = (TaskKind.REBALANCE,) + FEATURES
 # dt is computed once per step, from the first force stage
 FIRST_STAGE_ONLY = (TaskKind.DT_LOCAL, TaskKind.DT_ALLREDUCE)
+# shifting is applied in the last force stage (the corrector of a Symplectic step), damping
+# and periodic wrapping once the step's positions are final
+LAST_STAGE_ONLY = (TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES, TaskKind.SHIFT_HALO_1,
+                   TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT, TaskKind.SHIFT_APPLY,
+                   TaskKind.DAMPING, TaskKind.WRAP)
+# Where a feature's task goes when a schedule's `order` does not name it (schedule files
+# written before the feature keep working): ("after", labels) right after whichever of
+# `labels` comes last in the order, ("before", labels) right before the first of them,
+# ("end", ()) at the end of the step. Kinds are placed in this table's order, so a kind
+# may anchor on one placed before it.
+PLACEMENT = {
+    TaskKind.MDBC: ("before", ("send_edges", "forces_interior")),
+    TaskKind.FORCES_IMAGES: ("after", ("forces_interior",)),
+    TaskKind.SHIFT_INTERIOR: ("after", ("forces_interior", "forces_images")),
+    TaskKind.SHIFT_IMAGES: ("after", ("forces_images", "shift_interior")),
+    TaskKind.SHIFT_HALO_1: ("after", ("forces_halo_1",)),
+    TaskKind.SHIFT_HALO_2: ("after", ("forces_halo_2",)),
+    TaskKind.SHIFT_DISPLACEMENT: ("before", ("integrate",)),
+    TaskKind.SHIFT_APPLY: ("after", ("integrate",)),
+    TaskKind.MOTION: ("after", ("integrate", "shift_apply")),
+    TaskKind.DAMPING: ("after", ("integrate", "shift_apply", "motion")),
+    TaskKind.WRAP: ("after", ("integrate", "shift_apply", "motion", "damping")),
+    TaskKind.EXCLUDE: ("end", ()),
+    TaskKind.PROBES: ("end", ()),
+}

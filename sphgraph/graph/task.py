@@ -11,6 +11,21 @@ from typing import Callable
 
 from .kinds import TaskKind
 
+# Data names that stand for several: a declaration of "particles" reads (or writes) every
+# field of the owned rows. Tasks of the features name the fields they touch, so the graph
+# orders them by what they share; user tasks and the core's coarse tasks keep "particles".
+GROUPS = {"particles": ("rows", "positions", "velocities", "densities")}
+
+
+def fine(names) -> tuple:
+    """`names` with every group name replaced by its members (order kept, no repeats)."""
+    out = []
+    for n in names:
+        for m in GROUPS.get(n, (n,)):
+            if m not in out:
+                out.append(m)
+    return tuple(out)
+
 
 @dataclass(frozen=True)
 class Message:
@@ -61,7 +76,8 @@ class UserTask:
     """A task a user adds: a function plus its declared data access.
 
     `fn(ctx, task)` gets the rank context (`ctx.state`, `ctx.compute`, ...).
-    Data names are those of `sphgraph.graph.tasks.DATA` or new names of the
+    Data names are those of `sphgraph.graph.tasks.DATA` ("particles" for every
+    field of the owned rows) or new names of the
     user's own (kept in `ctx.state.extra`). Place it in a schedule's `order`
     by `name`; `per_stage` places one instance per force stage.
     """

@@ -1,7 +1,10 @@
 """The tasks of a step: declared data access, messages, and what each one runs.
 
-Data names (what tasks read, write or accumulate):
-  particles   the owned rows (positions, velocities, densities, history)
+Data names (what tasks read, write or accumulate; `DATA` lists them):
+  rows        which rows the rank owns and their order (ids, kinds, count)
+  positions, velocities, densities  the owned rows' fields (velocities and densities
+              include their Verlet history); `particles` names all four (`GROUPS`),
+              as a schedule's user tasks may declare
   cells       the owned rows' cell grid and pressures (rebuilt by build_cells)
               build_cells and recv_displaced both *accumulate* into particles and
               cells: either order gives bit-identical rows (build first: the arrivals are
@@ -9,29 +12,40 @@ Data names (what tasks read, write or accumulate):
               neighbour list the processes send and receive the particles that change
               subdomain"); send_displaced writes before them, every reader comes after both
   halo_1/2    the rows received from the lower / upper neighbour
+  images      the periodic images of the rank's own rows (sphgraph.periodic; force part halo_3)
   forces@s    the force buffer of stage s: every force task *accumulates* into its
-              own partial (interior, halo 1, halo 2); readers see the sum in that fixed order
+              own partial (interior, images, halo 1, halo 2); readers see the sum in a
+              fixed order
+  shift_sums  particle shifting's partial sums (one per source set, accumulated like forces)
+  displacement  the shifting displacement of the step
   dt_local, dt  the rank's dt proposal and the global dt
+  check       the end-of-step check's finding (row, cause) or none
+  samples     the run's probe and body-force samples (sphgraph.probes)
   edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
 
-`motion@s` (only when the scene asks, see sphgraph.features) runs after
-`integrate@s`: prescribed positions/velocities of moving bodies at the stage's end
-time, damping zones and periodic wrapping -- it reads dt and writes particles, so
-the next stage's edges and cells see the moved bodies.
-
-Particle shifting (sphgraph.shifting, only when the scene asks) adds no task: each
-force task also sums its source set's shifting terms (partial sums, part of the
-stage's force accumulation) and `integrate`, which reads the complete forces, turns
-them into displacements.
+Scene features add their own tasks, only when the scene asks (sphgraph.features): `mdbc@s`
+(boundary density and velocity extrapolated before the stage's forces), `forces_images@s`
+(the rows against their periodic images), the shifting sums of each source set
+(`shift_interior`, `shift_images`, `shift_halo_1/2`, last stage), `shift_displacement`
+(before `integrate`, from the velocities the forces saw) and `shift_apply` (after it),
+`motion@s` (moving bodies at the stage's end time), `damping` and `wrap` (periodic axes,
+last stage), `exclude` (end of step: the backend's check, rows out of bounds
+removed) and `probes` (end of step, a collective: the rows gathered on the root and
+sampled when a sample is due). Their place in a schedule that does not name them is
+`kinds.PLACEMENT`.
 
 The canonical order below is the step as a sequential program; dependencies
 come from it and the declarations (`build.rank_graph`), schedules reorder it.
 """
 from __future__ import annotations
 
-from .kinds import FIRST_STAGE_ONLY, NEEDS_NEIGHBOUR, TaskKind as K
-from .task import Message, Task
+from .kinds import FIRST_STAGE_ONLY, LAST_STAGE_ONLY, NEEDS_NEIGHBOUR, TaskKind as K
+from .task import GROUPS, Message, Task
 from ..wire import payload_nbytes
+
+DATA = ("rows", "positions", "velocities", "densities", "cells", "halo_1", "halo_2", "images",
+        "forces@s", "shift_sums", "displacement", "dt_local", "dt", "check", "samples", "edges@s",
+        "displaced") + tuple(GROUPS)
 
 # tags: one per (message type, stage, direction) so MPI's non-overtaking rule is never needed
 TAG_DISPLACED = 1
@@ -43,9 +57,20 @@ def tag_edges(stage: int, direction: int) -> int:
 
 
 PRE = (K.SEND_DISPLACED, K.RECV_DISPLACED, K.BUILD_CELLS)
-STAGE = (K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, K.FORCES_HALO_1,
-         K.FORCES_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.INTEGRATE, K.MOTION)
-POST = (K.REBALANCE,)
+STAGE = (K.MDBC, K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, K.FORCES_IMAGES,
+         K.SHIFT_INTERIOR, K.SHIFT_IMAGES, K.FORCES_HALO_1, K.SHIFT_HALO_1, K.FORCES_HALO_2,
+         K.SHIFT_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.SHIFT_DISPLACEMENT, K.INTEGRATE,
+         K.SHIFT_APPLY, K.MOTION, K.DAMPING, K.WRAP)
+POST = (K.REBALANCE, K.EXCLUDE, K.PROBES)
+
+
+def in_stage(kind: K, stage: int, stages: int) -> bool:
+    """Whether a kind of the stage block has an instance in force stage `stage` of `stages`."""
+    if kind in FIRST_STAGE_ONLY:
+        return stage == 1
+    if kind in LAST_STAGE_ONLY:
+        return stage == stages
+    return kind.per_stage or stage == 1
 
 
 def neighbours(rank: int, nranks: int) -> list[int]:
@@ -122,26 +147,37 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
     if kind is K.INTEGRATE:
         return Task(kind, s, reads=(f"forces@{s}", "dt"), writes=("particles",), lane=lane,
                     fn=run_integrate)
-    if kind is K.MOTION:
-        return Task(kind, s, reads=("dt",), writes=("particles",), lane=lane, fn=run_motion)
     if kind is K.REBALANCE:
         return Task(kind, None, reads=("particles",), writes=("particles", "cells"), lane=lane,
                     fn=run_rebalance, collective=True)
+    feature = FEATURE_ACCESS.get(kind)
+    if feature is not None:
+        reads, writes, accumulates, fn = feature
+        at = (lambda names: tuple(x.replace("@s", f"@{s}") for x in names))
+        return Task(kind, s if kind.per_stage else None, reads=at(reads), writes=at(writes),
+                    accumulates=at(accumulates), lane=lane, fn=fn, collective=kind is K.PROBES,
+                    meta={"part": _SHIFT_PART.get(kind)})
     raise ValueError(kind)
 
 
 def canonical_tasks(rank: int, nranks: int, stages: int, rebalance: bool = False,
-                    motion: bool = False, ring: bool = False) -> list[Task]:
-    """The step as a sequential program for one rank (the reference order)."""
+                    features=(), ring: bool = False) -> list[Task]:
+    """The step as a sequential program for one rank (the reference order); `features`:
+    the feature kinds the run places (`sphgraph.features.Features.kinds`)."""
+    from .kinds import CONDITIONAL
+    features = frozenset(features)
+
+    def placed(k):
+        return (k not in CONDITIONAL or k in features) and applicable(k, rank, nranks, ring)
+
     out = [make_task(k, None, rank, nranks, ring=ring) for k in PRE if applicable(k, rank, nranks, ring)]
     for s in range(1, stages + 1):
         for k in STAGE:
-            if (k in FIRST_STAGE_ONLY and s != 1) or (k is K.MOTION and not motion):
-                continue
-            if applicable(k, rank, nranks, ring):
+            if in_stage(k, s, stages) and placed(k):
                 out.append(make_task(k, s if k.per_stage else None, rank, nranks, ring=ring))
     if rebalance and nranks > 1:
         out.append(make_task(K.REBALANCE, None, rank, nranks))
+    out += [make_task(k, None, rank, nranks, ring=ring) for k in POST if k is not K.REBALANCE and placed(k)]
     return out
 
 
@@ -186,9 +222,6 @@ def run_recv_halo(ctx, task):
 
 def run_forces(ctx, task):
     ctx.compute.forces(ctx.state, task.meta["part"])
-    features = getattr(ctx, "features", None)
-    if features is not None:   # periodic images (own rows: interior task), shifting sums
-        features.after_forces(ctx, task.meta["part"], task.stage)
 
 
 def run_dt_local(ctx, task):
@@ -206,17 +239,76 @@ def _dt_value(ctx):
 
 def run_integrate(ctx, task):
     ctx.compute.reduce_forces(ctx.state, task.stage)
-    features = getattr(ctx, "features", None)
-    if features is not None:   # particle shifting: displacements from the velocities before the update
-        features.before_integrate(ctx, task.stage)
     ctx.compute.integrate(ctx.state, task.stage, ctx.integrator, ctx.euler)
-    if features is not None:
-        features.after_integrate(ctx, task.stage)
-
-
-def run_motion(ctx, task):
-    ctx.features.post_integrate(ctx, task.stage)
 
 
 def run_rebalance(ctx, task):
     ctx.balancer.step(ctx)
+
+
+# the feature tasks' bodies are the scene features' own (sphgraph.features: ctx.features)
+def run_mdbc(ctx, task):
+    ctx.features.mdbc.apply(ctx)
+
+
+def run_forces_images(ctx, task):
+    ctx.features.periodic.image_forces(ctx)
+
+
+def run_shift_part(ctx, task):
+    ctx.features.shifting.sums(ctx, task.meta["part"])
+
+
+def run_shift_displacement(ctx, task):
+    ctx.features.shifting.displacement(ctx)
+
+
+def run_shift_apply(ctx, task):
+    ctx.features.shifting.apply(ctx)
+
+
+def run_motion(ctx, task):
+    ctx.features.move_bodies(ctx, task.stage)
+
+
+def run_damping(ctx, task):
+    ctx.features.damping.apply(ctx.state, ctx.state.dt)
+
+
+def run_wrap(ctx, task):
+    ctx.features.periodic.wrap(ctx.state)
+
+
+def run_exclude(ctx, task):
+    ctx.features.exclude(ctx)
+
+
+def run_probes(ctx, task):
+    ctx.features.probes.sample_step(ctx)
+
+
+_SHIFT_PART = {K.SHIFT_INTERIOR: "interior", K.SHIFT_IMAGES: "halo_3", K.SHIFT_HALO_1: "halo_1",
+               K.SHIFT_HALO_2: "halo_2"}
+_FIELDS = ("rows", "positions", "velocities", "densities")
+# kind -> (reads, writes, accumulates, body) of the feature tasks; "@s" is the task's stage
+FEATURE_ACCESS = {
+    # the boundary rows' densities and velocities (and their pressures, part of cells) from the fluid
+    K.MDBC: (_FIELDS + ("cells",), ("densities", "velocities", "cells"), (), run_mdbc),
+    # images of the own rows made and binned, then summed like a halo into the stage's forces
+    K.FORCES_IMAGES: (_FIELDS + ("cells",), ("images",), ("forces@s",), run_forces_images),
+    K.SHIFT_INTERIOR: (("rows", "positions", "densities", "cells"), (), ("shift_sums",), run_shift_part),
+    K.SHIFT_IMAGES: (("rows", "positions", "images"), (), ("shift_sums",), run_shift_part),
+    K.SHIFT_HALO_1: (("rows", "positions", "halo_1"), (), ("shift_sums",), run_shift_part),
+    K.SHIFT_HALO_2: (("rows", "positions", "halo_2"), (), ("shift_sums",), run_shift_part),
+    # from the velocities the forces saw: before integrate writes new ones
+    K.SHIFT_DISPLACEMENT: (("rows", "velocities", "shift_sums", "dt"), ("displacement",), (),
+                           run_shift_displacement),
+    K.SHIFT_APPLY: (("displacement", "positions"), ("positions",), (), run_shift_apply),
+    K.MOTION: (("rows", "dt"), ("positions", "velocities"), (), run_motion),
+    K.DAMPING: (("rows", "positions", "velocities", "dt"), ("velocities",), (), run_damping),
+    K.WRAP: (("positions",), ("positions",), (), run_wrap),
+    # the backend's end-of-step check; rows out of bounds removed (buffers for the new count)
+    K.EXCLUDE: (("particles", "dt"), ("particles", "cells", "check"), (), run_exclude),
+    # a collective (every rank's rows to the root) at the steps a sample is due
+    K.PROBES: (("particles", "dt"), ("samples",), (), run_probes),
+}
