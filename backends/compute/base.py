@@ -108,7 +108,7 @@ class ComputeBackend:
             n += sum(x.nbytes for x in (b.ace, b.ar, b.ddt, b.cancel, b.visc))
         if state.cells is not None:
             n += state.cells.start.nbytes
-        if getattr(state, "sort_perm", None) is not None:
+        if state.sort_perm is not None:
             n += state.sort_perm.nbytes
         return n
 

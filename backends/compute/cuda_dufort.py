@@ -389,7 +389,7 @@ def ddk_out(be, state, dv, part, final) -> tuple:
     if final:
         a = _ddk_array(dv, m)
         key = (id(a), dv.nf, dv.n)
-        if getattr(dv, "ddk_zeroed", None) != key and dv.n > dv.nf:
+        if dv.ddk_zeroed != key and dv.n > dv.nf:
             be._on(state, CK.build(dv.dtype)).k_fill[CK.blocks(dv.n - dv.nf), CK.BLOCK](a[dv.nf:dv.n], dv.n - dv.nf,
                                                                                        0.0)
             dv.ddk_zeroed = key

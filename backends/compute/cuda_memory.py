@@ -88,6 +88,7 @@ class DeviceState:
         self.halo_ranges = {}                       # halo side -> own target rows (ipc halos; reduce_forces)
         self.host_obj = None                        # the host Particles the device rows were uploaded from
         self.integrator = None                      # the integrator of the last integrate (None: none yet)
+        self.ddk_zeroed = None                      # cuda_dufort: the layout whose boundary K_a rows are zeroed
         self._scratch = {}                          # scratch views (scratch)
         self.permute_groups = {}                    # cuda_cells._permute_groups' cache
         # --halo-transport ipc (cuda_halo)

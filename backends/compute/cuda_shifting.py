@@ -131,7 +131,7 @@ class CudaShifting:
         grow up to dv.cap when rows arrive); allocated on first use."""
         names = [f"sh_{part}_{c}" for c in ("gx", "gy", "gz", "div", "cc")]
         if names[0] not in dv.arrays or dv.arrays[names[0]].shape[0] < dv.n:
-            m = max(dv.n, getattr(dv, "cap", 1), 1)
+            m = max(dv.n, dv.cap, 1)
             for c, name in enumerate(names):
                 size = 1 if (c == 2 and dv.dim == 2) else m
                 dv.arrays[name] = cuda.device_array(size, np.int8 if c == 4 else dv.dtype)

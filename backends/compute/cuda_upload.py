@@ -37,7 +37,7 @@ class CudaUpload:
         # rank's records are valid on its neighbours: ipc halos), else the rows' minimum
         if old is not None:
             ref = old.ref
-        elif getattr(state, "ref", None) is not None:
+        elif state.ref is not None:
             ref = np.asarray(state.ref, np.float64).copy()
         else:
             ref = lo.copy() if p.n else np.zeros(dim)
