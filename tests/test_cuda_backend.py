@@ -18,6 +18,8 @@ import textwrap
 import numpy as np
 import pytest
 
+from cudasim_helpers import gpu, run_script
+
 SCENES = textwrap.dedent('''
     from sphgraph.scene import Scene
 
@@ -88,29 +90,6 @@ COMPARE = SCENES + textwrap.dedent('''
 ''')
 
 
-def _run(script: str, sim: bool, timeout=300) -> dict:
-    env = dict(os.environ)
-    if sim:
-        env["NUMBA_ENABLE_CUDASIM"] = "1"
-    else:
-        env.pop("NUMBA_ENABLE_CUDASIM", None)
-    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-4000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
-
-
-gpu = pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
-
 CASES = [(2, "verlet", 3), (2, "symplectic", 2), (3, "verlet", 2), (3, "symplectic", 2)]
 
 
@@ -125,7 +104,7 @@ def _check_case(r, tol=1e-9):
 @pytest.fixture(scope="module")
 def simulated():
     script = COMPARE + "\nprint(json.dumps([compare(*c) for c in %r]))\n" % (CASES,)
-    out = _run(script, sim=True)
+    out = run_script(script, sim=True)
     return {(r["dim"], r["integrator"]): r for r in out}
 
 
@@ -162,7 +141,7 @@ def test_retarget_casts_float_literals():
         c64 = [type(c).__name__ for c in f64.__code__.co_consts if isinstance(c, (float, np.floating))]
         print(json.dumps({"c32": c32, "c64": c64}))
     ''')
-    out = _run(script, sim=True)
+    out = run_script(script, sim=True)
     assert out["c32"] and set(out["c32"]) == {"float32"}
     assert set(out["c64"]) == {"float"}
 
@@ -266,7 +245,7 @@ def test_trimmed_row_holds_exactly_the_chord():
 @pytest.mark.parametrize("dim,integrator,steps", CASES)
 def test_gpu_float64_matches_cpu(dim, integrator, steps):
     script = COMPARE + "\nprint(json.dumps(compare(%d, %r, %d)))\n" % (dim, integrator, steps)
-    _check_case(_run(script, sim=False))
+    _check_case(run_script(script, sim=False))
 
 
 @pytest.mark.gpu
@@ -275,7 +254,7 @@ def test_gpu_float32_close_to_cpu():
     """float32 arithmetic (float64 positions) against CPU float64 over 40 steps of a
     2D dam break: positions within 1e-5 of the domain."""
     script = COMPARE + "\nprint(json.dumps(compare(2, 'verlet', 40, 'float32', 0.02)))\n"
-    r = _run(script, sim=False)
+    r = run_script(script, sim=False)
     assert r["ids"]
     assert r["pos"] < 1e-5, r["pos"]
 
@@ -364,7 +343,7 @@ def test_simulator_multirank_matches_cpu(integrator, schedule, shift):
     1e-2 in density.) The cut is moved by 2 spacings (up, then down), so rows change rank
     in the first step: they must be removed and appended on the device, with no whole
     re-upload and no whole download."""
-    r = _run(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 3, 2, {schedule!r}, shift={shift})))",
+    r = run_script(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 3, 2, {schedule!r}, shift={shift})))",
              sim=True, timeout=600)
     assert r["ids"]
     assert r["pos"] < 1e-9, r
@@ -377,7 +356,7 @@ def test_simulator_multirank_matches_cpu(integrator, schedule, shift):
 @gpu
 def test_gpu_multirank_matches_cpu():
     """The same 2 mock ranks on the GPU (float64) against 1 CPU rank."""
-    r = _run(MULTI + "\nprint(json.dumps(multi(2, 'symplectic', 3, 2)))", sim=False, timeout=600)
+    r = run_script(MULTI + "\nprint(json.dumps(multi(2, 'symplectic', 3, 2)))", sim=False, timeout=600)
     assert r["ids"]
     assert r["pos"] < 1e-9, r
 
@@ -427,7 +406,7 @@ LANE_RUNS = [(2, 2), (3, 1)]
 @pytest.fixture(scope="module")
 def lane_runs():
     script = LANES + "\nprint(json.dumps(lanes(%r)))\n" % (LANE_RUNS,)
-    return {r["ranks"]: r for r in _run(script, sim=True, timeout=600)}
+    return {r["ranks"]: r for r in run_script(script, sim=True, timeout=600)}
 
 
 @pytest.mark.parametrize("ranks", [r for r, _ in LANE_RUNS])
@@ -529,7 +508,7 @@ LANES_GPU = MULTI + textwrap.dedent('''
 def test_gpu_lane_streams_bit_identical_to_the_default_stream(ranks):
     """On the GPU, one stream per lane with events (production, rows changing rank, float64)
     gives the bits of the default-stream path (SPHGRAPH_CUDA_STREAMS=0): no event missing."""
-    r = _run(LANES_GPU + f"\nprint(json.dumps(streams_vs_default({ranks}, 5)))", sim=False, timeout=600)
+    r = run_script(LANES_GPU + f"\nprint(json.dumps(streams_vs_default({ranks}, 5)))", sim=False, timeout=600)
     assert r["lanes"] == [True, False], r
     assert r["same"], r
 

@@ -17,18 +17,9 @@ from pathlib import Path
 
 import pytest
 
+from cudasim_helpers import gpu_available
+
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _gpu_available() -> bool:
-    import os
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
 
 
 def _fine(*args, timeout=1500):
@@ -40,7 +31,7 @@ def _fine(*args, timeout=1500):
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
+@pytest.mark.skipif(not gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
 @pytest.mark.parametrize("case, args", [
     ("yeh_petroff", ["--dp", "0.0085"]),
     ("wall2d", ["--diffusion-time", "leapfrog"]),

@@ -6,13 +6,11 @@ real GPU.
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
+
+from cudasim_helpers import gpu, run_script
 
 SCRIPT = textwrap.dedent('''
     import json
@@ -59,27 +57,6 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-def _run(script: str, sim: bool, timeout=300) -> list:
-    env = dict(os.environ)
-    if sim:
-        env["NUMBA_ENABLE_CUDASIM"] = "1"
-    else:
-        env.pop("NUMBA_ENABLE_CUDASIM", None)
-    r = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=timeout)
-    assert r.returncode == 0, r.stderr[-4000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
-
-
-def _gpu_available() -> bool:
-    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
-        return False
-    try:
-        from numba import cuda
-        return bool(cuda.is_available())
-    except Exception:  # noqa: BLE001
-        return False
-
-
 def _check(r, tol=1e-9):
     assert r["ids"], r
     assert r["shift"] > 1e-8, r                 # the shift acted (~1e-7 of the domain in 2 steps)
@@ -97,18 +74,18 @@ CASES = [
 
 
 def test_simulator_matches_cpu():
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(*c) for c in %r]))\n" % (CASES,), sim=True)
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(*c) for c in %r]))\n" % (CASES,), sim=True)
     for r in out:
         _check(r)
 
 
 @pytest.mark.gpu
-@pytest.mark.skipif(not _gpu_available(), reason="no CUDA GPU (numba.cuda.is_available() is false)")
+@gpu
 def test_gpu_matches_cpu():
     """Real GPU: a 2D tank at dp = 0.01 (~4,700 particles), 30 steps, float64 on 1 and 2
     ranks to 1e-9 of the domain; float32 (the GPU default) to 1e-5."""
     cases = [(2, "full", 0.01, 30, 1), (2, "nobound", 0.01, 30, 2)]
-    out = _run(SCRIPT + "\nprint(json.dumps([compare(*c) for c in %r] + [compare(2, 'full', 0.01, 30, 1, "
+    out = run_script(SCRIPT + "\nprint(json.dumps([compare(*c) for c in %r] + [compare(2, 'full', 0.01, 30, 1, "
                "'float32')]))\n" % (cases,), sim=False, timeout=600)
     for r in out[:2]:
         _check(r)
