@@ -15,7 +15,8 @@ import textwrap
 import numpy as np
 import pytest
 
-from test_cuda_backend import SCENES, _run, gpu
+from cudasim_helpers import gpu, run_script
+from test_cuda_backend import SCENES
 
 IPC_SIM = SCENES + textwrap.dedent('''
     import json
@@ -64,7 +65,7 @@ IPC_SIM = SCENES + textwrap.dedent('''
 
 @pytest.fixture(scope="module")
 def ipc_sim():
-    return _run(IPC_SIM + "\nprint(json.dumps(ipc_vs_staged(2, 'symplectic', 3, 1)))", sim=True, timeout=600)
+    return run_script(IPC_SIM + "\nprint(json.dumps(ipc_vs_staged(2, 'symplectic', 3, 1)))", sim=True, timeout=600)
 
 
 def test_simulator_ipc_and_staged_halos_match_one_rank(ipc_sim):

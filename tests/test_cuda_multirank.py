@@ -13,7 +13,8 @@ import textwrap
 
 import pytest
 
-from test_cuda_backend import SCENES, _run, gpu
+from cudasim_helpers import gpu, run_script
+from test_cuda_backend import SCENES
 
 SCRIPT = SCENES + textwrap.dedent('''
     import json
@@ -88,7 +89,7 @@ RUNS = [(4, "symplectic", 3, False), (5, "verlet", 3, False), (4, "verlet", 2, T
 @pytest.fixture(scope="module")
 def simulated():
     script = SCRIPT + "\nprint(json.dumps([run(*r) for r in %r]))\n" % (RUNS,)
-    return _run(script, sim=True, timeout=900)
+    return run_script(script, sim=True, timeout=900)
 
 
 @pytest.mark.parametrize("k", range(len(RUNS)))
@@ -139,7 +140,7 @@ def test_gpu_many_ranks_match_one_at_a_million(ranks):
                           "unique": bool(len(np.unique(ids)) == len(ids) == len(a["id"])),
                           "pos": float(np.abs(a["position"] - b["position"]).max() / ext)}}))
     ''')
-    r = _run(script, sim=False, timeout=900)
+    r = run_script(script, sim=False, timeout=900)
     assert r["n"] >= 1_000_000
     assert r["same_ids"] and r["unique"], r
     assert r["pos"] < 1e-9, r
@@ -150,7 +151,7 @@ def test_simulator_no_allocation_and_few_host_waits_a_step():
     waits for the device at most 4 times a rank-step: once for dt, once for the check (which
     also counts the next sort's edge bounds: the edges' row ranges stay on the device), twice
     more where rows leave (their count, their rows)."""
-    r = _run(COSTS + "\nprint(json.dumps(costs(2, 2)))", sim=True, timeout=600)
+    r = run_script(COSTS + "\nprint(json.dumps(costs(2, 2)))", sim=True, timeout=600)
     assert r["transport"] == "ipc", r
     assert r["device_alloc"] == 0 and r["pinned_alloc"] == 0, r
     assert 2 <= r["host_wait"] <= 4, r
