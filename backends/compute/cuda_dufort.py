@@ -29,6 +29,7 @@ from sphgraph.config import O_DDT_DF, P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
 from sphgraph.physics.interact import bound_pair, fluid_pair_df  # noqa: F401
 
 from . import cuda_forces as CF
+from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from .cuda_forces import _row_cut, _store_fluid, _trimmed, _warp_max_into, _window  # noqa: F401
@@ -413,11 +414,8 @@ def reduce(be, state, dv, ranged) -> None:
     if ranged:
         inner = P["interior"]
         flat = []
-        for side in (1, 2):
-            name = f"halo_{side}"
-            r = dv.halo_ranges.get(side) if name in P else None
-            b = P[name] if r is not None else inner
-            flat += [1 if r is not None else 0, r or 0, b["ddk"], b["cancel"]]
+        for used, r, b in CH.ranged_parts(dv):
+            flat += [used, r, b["ddk"], b["cancel"]]
         k.k_reduce_ranged_ddk[CK.blocks(dv.n), CK.BLOCK](dv.n, A["kind"], inner["ddk"], inner["cancel"],
                                                         A["pick8"], *flat, out)
         return

@@ -135,14 +135,10 @@ class CudaForceDispatch:
 
     def _reduce_ranged(self, state, dv) -> None:
         """reduce_forces with ipc halo parts, each added at its target rows only."""
-        P = dv.parts
-        inner = P["interior"]
+        inner = dv.parts["interior"]
         flat = []
-        for side in (1, 2):
-            name = f"halo_{side}"
-            r = dv.halo_ranges.get(side) if name in P else None
-            b = P[name] if r is not None else inner
-            flat += [1 if r is not None else 0, r or 0, b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
+        for used, r, b in CH.ranged_parts(dv):
+            flat += [used, r, b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]
         gvec = np.zeros(3)
         gvec[:dv.dim] = state.consts.gravity
         ft = dv.dtype.type

@@ -351,3 +351,16 @@ def check_generations(state, dv) -> None:
         src, slot, gen, got = bad
         raise CommError(f"--halo-transport ipc: rank {src}'s edge buffer (tag {slot}) was rewritten "
                         f"before rank {state.rank} read it: generation {got}, expected {gen}")
+
+
+def ranged_parts(dv) -> list:
+    """[(used, offset in pick8, part buffers)] for halo sides 1 and 2 of a reduction with
+    ipc halo parts (each added at its own target rows): an unused side passes the interior
+    buffers, which the kernel does not read."""
+    P = dv.parts
+    out = []
+    for side in (1, 2):
+        name = f"halo_{side}"
+        r = dv.halo_ranges.get(side) if name in P else None
+        out.append((1 if r is not None else 0, r or 0, P[name] if r is not None else P["interior"]))
+    return out
