@@ -51,6 +51,7 @@ def main(argv=None) -> int:
         out = io.StringIO()
         st = pstats.Stats(pr, stream=out)
         st.sort_stats("tottime").print_stats(a.top)
+        st.sort_stats("cumulative").print_stats(a.top)
         print(f"== ranks {n}: {sim.n_total} particles, {a.steps / wall:.2f} steps/s (wall, under the profiler), "
               f"{1e3 * wall / a.steps:.2f} ms a step")
         print(out.getvalue())

@@ -126,6 +126,26 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # host / device peaks in the JSON (--lean: no pair count, profile pass or bare loop)
     largest)  stage largest 540 python3 benchmarks/gpu_bench.py --dp 0.00095 --steps 10 --warmup 2 --lean \
                 --json "$OUT/largest.json" ;;
+    # every GPU test but the fine runs (the multi-rank path, ipc under mpiexec -n 2 and -n 4,
+    # shifting, DuFort-Frankel, Riemann, mDBC and the backend against numba-cpu)
+    tests-all) stage tests_all 420 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_cuda_backend.py \
+                tests/test_cuda_multirank.py tests/test_cuda_halo.py tests/test_shifting_cuda.py \
+                tests/test_cuda_dufort.py tests/test_cuda_riemann.py tests/test_cuda_mdbc.py ;;
+    # cProfile of 1, 2 and 4 mock ranks at 4.4 M (where the host time of a rank-step goes)
+    hostprof-ranks) stage hostprof_ranks 200 python3 benchmarks/gpu_host_profile.py --dp 0.006 --ranks 1 2 4 \
+                --steps 20 --top 45 ;;
+    # mock ranks against single at 4.4 M, ROUNDS rounds (default 1), 52 timed steps
+    mock-4m)  stage mock_4m 240 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 --warmup 2 \
+                --rounds "${ROUNDS:-1}" --json "$OUT/mock_4m.json" ;;
+    # the fine runs of issue 22 §1 on the GPU, float32 (benchmarks/fine_runs.py), one log each
+    fine)     stage fine_yeh 400 python3 benchmarks/fine_runs.py yeh_petroff --dp 0.0085 --backend numba-cuda \
+                --precision float32
+              stage fine_yeh_df 400 python3 benchmarks/fine_runs.py yeh_petroff --dp 0.0085 --backend numba-cuda \
+                --precision float32 --diffusion-time dufort-frankel --no-exclude
+              stage fine_wall2d 400 python3 benchmarks/fine_runs.py wall2d --diffusion-time leapfrog \
+                --backend numba-cuda --precision float32
+              stage fine_wall2d_df 400 python3 benchmarks/fine_runs.py wall2d --backend numba-cuda --precision float32 \
+                --no-exclude ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

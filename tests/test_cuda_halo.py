@@ -140,12 +140,13 @@ def test_halo_transport_bad_input_exits_2(tmp_path, args, expect):
 @pytest.mark.gpu
 @pytest.mark.mpi
 @gpu
-def test_gpu_mpiexec_ipc_halos_match_staged_and_one_rank():
-    """`mpiexec -n 2` on the GPU machine (two ranks on one GPU or one each): CUDA IPC
-    handles exchanged over MPI, halos device to device; both transports equal to the
-    single-rank run within 1e-9 of the domain (tests/mpi_driver.py)."""
+@pytest.mark.parametrize("n", [2, 4])
+def test_gpu_mpiexec_ipc_halos_match_staged_and_one_rank(n):
+    """`mpiexec -n 2` and `-n 4` on the GPU machine (all ranks on one GPU, or one each):
+    CUDA IPC handles exchanged over MPI, halos device to device; both transports equal to
+    the single-rank run within 1e-9 of the domain (tests/mpi_driver.py)."""
     from test_multirank import run_driver
-    r = run_driver(2, ["cuda-ipc"], timeout=900)["cuda-ipc"]
+    r = run_driver(n, ["cuda-ipc"], timeout=900)["cuda-ipc"]
     assert r["ok"] and r["rel_err"] <= 1e-9, r
     assert min(r["edge_reads"]) > 0 and min(r["staged_h2d_halo"]) > 0, r
     print(json.dumps(r))

@@ -40,7 +40,7 @@ from sphgraph.wire import WirePayload, codec
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from .cuda_lanes import new_event
-from .cuda_memory import COUNTERS, VEC, count_bytes, dev_array, host_wait, pinned_array, split
+from .cuda_memory import COUNTERS, VEC, count_bytes, dev_array, edge_capacity, host_wait, kept_views, pinned_array, split
 
 _WIRE = 2            # layout version of DeviceEdge.to_wire
 _HEAD = 20           # int64 words before the pickled IPC handle
@@ -245,7 +245,7 @@ def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
     tag), an event recorded after it; no host wait. The slot's layout is by the row bound:
     the true count is on the device, in the packed cell starts."""
     c0, npl, fb, bb = edge_ranges(be, state, dv, domain)[direction]
-    cap = fb + bb
+    cap = edge_capacity(fb + bb)
     g = dv.grid
     n0, n1 = int(g["dims"][0]), int(g["dims"][1])
     nch = n0 * n1 * npl
@@ -259,7 +259,7 @@ def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
              "event": new_event(False), "retired": [] if old is None else old["retired"] + [old["buf"]]}
         slots[slot] = e
     e["gen"] += 1
-    d = split(e["buf"][:nb], lay)
+    d = kept_views(e, e["buf"], lay, nb)
     A = dv.arrays
     if "edge_over" not in A:
         A["edge_over"] = dev_array(1, np.int32)
@@ -312,7 +312,7 @@ def receive_edge(be, state, edge) -> None:
         raise CommError(f"--halo-transport ipc: rank {edge.src} sent {edge.dim}D {edge.dtype} rows to a "
                         f"{dv.dim}D {dv.dtype} rank")
     lay, nb = edge_layout(edge.m, edge.ncells, dv.dtype)
-    buf = _peer_buffer(dv, edge)[:nb]
+    buf = _peer_buffer(dv, edge)
     s = be._s(state)
     if edge.event is not None:
         if s:
@@ -321,7 +321,8 @@ def receive_edge(be, state, edge) -> None:
             edge.event.wait()
     else:
         _check_generation(be, state, dv, edge, buf)
-    edge.views = split(buf, lay)
+    # views kept per (sender, tag): a receiver reads each of its peers' slots
+    edge.views = kept_views(dv.edge_views.setdefault((edge.src, edge.slot), {}), buf, lay, nb)
     be._log(state, "halo_views", edge.slot, edge.gen)
 
 

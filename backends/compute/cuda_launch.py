@@ -25,8 +25,8 @@ import numpy as np
 from . import cuda_kernels as CK
 
 ENABLED = os.environ.get("SPHGRAPH_CUDA_FAST_LAUNCH", "1") != "0" and not CK.SIMULATOR
-_SCALARS = (int, float, bool, np.float32, np.float64, np.int8, np.int16, np.int32, np.int64,
-            np.uint8, np.uint32, np.uint64, np.bool_)
+_SCALARS = frozenset((int, float, bool, np.float32, np.float64, np.int8, np.int16, np.int32, np.int64,
+                      np.uint8, np.uint32, np.uint64, np.bool_))
 _ARRAY, _RAW = 0, 1          # plan entries other than a ctypes class
 _MISS = object()
 _STREAMS: dict = {}          # id(numba stream or 0) -> (stream, cuda.core stream)
@@ -35,11 +35,25 @@ _NS: dict = {}               # id(namespace) -> (namespace, fast namespace)
 launches = {"fast": 0, "numba": 0}   # counters (tests, benchmarks)
 
 
+_TYPES: dict = {}            # id -> numba type of the arrays seen, kept alive: plans are keyed by these ids
+
+
 def _argkey(v):
+    """What picks an argument's overload: the type of a scalar; for a device array the id
+    of its numba type (interned; kept alive in _TYPES, so an id names one type), cached on
+    the array. Hashing numba types themselves runs Python code on every launch."""
     t = type(v)
     if t in _SCALARS:
         return t
-    return getattr(v, "_numba_type_", None) if getattr(v, "__cuda_memory__", False) else None
+    if not getattr(v, "__cuda_memory__", False):
+        return None
+    d = v.__dict__
+    k = d.get("_sg_key")
+    if k is None:
+        ty = v._numba_type_
+        k = d["_sg_key"] = id(ty)
+        _TYPES.setdefault(k, ty)
+    return k
 
 
 def _flat(a):

@@ -95,6 +95,7 @@ class DeviceState:
         self.domain = None                          # the slabs of the last device edge (the halo forces' cut)
         self.edge_slots = {}                        # message tag -> this rank's edge buffer
         self.edge_peers = {}                        # (rank, tag) -> a peer's buffer mapped here
+        self.edge_views = {}                        # (rank, tag) -> the views of a peer's slot (kept_views)
         self.edge_ranges = None                     # (sort_gen, cut, ranges) of the current sort
         self.edge_bound = None                      # (cut, row bounds by direction) from the check
         self.band_for = None                        # the cut the band counts were launched for
@@ -251,6 +252,28 @@ def layout(fields):
 def split(buf, lay):
     """Typed views of a flat uint8 buffer (host or device) by a `layout`."""
     return {k: buf[o:o + dt.itemsize * c].view(dt) for k, (o, dt, c) in lay.items()}
+
+
+def kept_views(holder, buf, lay, nb):
+    """split(buf[:nb], lay) of a kept device buffer, made once per (buffer, layout) and kept
+    in the dict `holder`: numba-cuda's slicing costs tens of microseconds of host time a
+    view, and a halo slot is written and read with the same layout step after step
+    (`edge_capacity` rounds its row bound so that the layout rarely changes)."""
+    key = (nb, tuple(lay.items()))
+    got = holder.get("views")
+    if got is not None and got[0] is buf and got[1] == key:
+        return got[2]
+    v = split(buf[:nb], lay)
+    holder["views"] = (buf, key, v)
+    return v
+
+
+def edge_capacity(rows: int) -> int:
+    """A halo slot's row bound rounded up to a multiple of about 1/32 of itself (at least
+    4096 rows): the bound follows the band counts, which change by a few rows a step, and
+    a new bound means new views and launch plans on both sides."""
+    q = 1 << max(12, (max(int(rows), 1) // 32).bit_length())
+    return -(-int(rows) // q) * q
 
 
 def row_layout(dv, m):

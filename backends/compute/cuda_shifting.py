@@ -48,8 +48,15 @@ def k_shift_sums(dpx, dpy, dpz, drx_, dry_, drz_, dkind, n,
     dv = zero
     cc = 0
     if dkind[i] == 0:
-        gx, gy, gz, dv, cc = shift_row(dpx[i], dpy[i], dpz[i] if dim == 3 else 0.0,
-                                       drx_[i], dry_[i], drz_[i] if dim == 3 else zero,
+        # the z terms are read before the call: numba cannot type a call of more than 30
+        # arguments (CPython passes them as a tuple, CALL_FUNCTION_EX) with a conditional
+        # expression among them
+        pz = 0.0
+        rz = zero
+        if dim == 3:
+            pz = dpz[i]
+            rz = drz_[i]
+        gx, gy, gz, dv, cc = shift_row(dpx[i], dpy[i], pz, drx_[i], dry_[i], rz,
                                        spx, spy, spz, ps, po1, po2, sr, rs, ro, skind, start, split,
                                        o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
                                        prm, dim, kernel_id, mode)

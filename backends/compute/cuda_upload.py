@@ -105,7 +105,7 @@ class CudaUpload:
             dv.pinned_xfer, dv.halo_pool, dv.halo_last = old.pinned_xfer, old.halo_pool, old.halo_last
             # --halo-transport ipc: this rank's edge buffers (their handles went to the peers
             # once) and the peers' buffers it has mapped (cuda_halo)
-            dv.edge_slots, dv.edge_peers = old.edge_slots, old.edge_peers
+            dv.edge_slots, dv.edge_peers, dv.edge_views = old.edge_slots, old.edge_peers, old.edge_views
         state.extra["dev"] = dv
         count_bytes(state, "h2d_bytes", "upload", up)
         state.parts = {}
