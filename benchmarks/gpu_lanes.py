@@ -54,17 +54,24 @@ def overlaps(trace) -> list:
     for step, rows in sorted(by.items()):
         for inter in (e for e in rows if e["task"].startswith("forces_interior@")):
             s = inter["task"].split("@")[1]
-            ov = {"own_edge_d2h": 0.0, "own_halo_h2d": 0.0, "nb_edge_d2h": 0.0, "nb_halo_h2d": 0.0}
+            ov = {"own_edge_d2h": 0.0, "own_halo_h2d": 0.0, "nb_edge_d2h": 0.0, "nb_halo_h2d": 0.0,
+                  "own_send_edges": 0.0, "nb_send_edges": 0.0}
             for c in rows:
+                # staged: the copies; ipc: the edge pack itself (send_edges@s on its stream)
                 if c["task"] in ("edge_d2h", "halo_h2d") and (c["inside"] or "").endswith("@" + s):
-                    key = ("own_" if c["rank"] == inter["rank"] else "nb_") + c["task"]
-                    ov[key] += max(0.0, min(c["end"], inter["end"]) - max(c["start"], inter["start"]))
+                    name = c["task"]
+                elif c["task"] == f"send_edges@{s}" and not c["inside"]:
+                    name = "send_edges"
+                else:
+                    continue
+                key = ("own_" if c["rank"] == inter["rank"] else "nb_") + name
+                ov[key] += max(0.0, min(c["end"], inter["end"]) - max(c["start"], inter["start"]))
             out.append({"rank": inter["rank"], "step": step, "stage": int(s),
                         "interior_s": inter["end"] - inter["start"], **ov})
     return out
 
 
-def run(dp, ranks, schedule, streams, steps, warmup, trace_steps, precision, scene, profile=None):
+def run(dp, ranks, schedule, streams, steps, warmup, trace_steps, precision, scene, profile=None, chrome=None):
     os.environ["SPHGRAPH_CUDA_STREAMS"] = str(streams)   # read by the backend's constructor
     from numba import cuda
 
@@ -108,10 +115,16 @@ def run(dp, ranks, schedule, streams, steps, warmup, trace_steps, precision, sce
          "setup_s": setup, "warmup_s": warm, "steps": steps, "steps_per_s": steps / wall,
          "particle_steps_per_s": steps * sim.n_total / wall, "trace_steps": trace_steps,
          "overlap": ov, "interior_s": sum(x["interior_s"] for x in ov),
-         **{k + "_s": sum(x[k] for x in ov) for k in ("own_edge_d2h", "own_halo_h2d", "nb_edge_d2h", "nb_halo_h2d")},
+         **{k + "_s": sum(x[k] for x in ov) for k in ("own_edge_d2h", "own_halo_h2d", "nb_edge_d2h", "nb_halo_h2d",
+                                                        "own_send_edges", "nb_send_edges")},
          "interior_tasks": len(ov),
          "interior_overlapping_edges": sum(1 for x in ov if x["own_edge_d2h"] + x["own_halo_h2d"] + x["nb_edge_d2h"]
-                                           + x["nb_halo_h2d"] > 0), "trace": trace}
+                                           + x["nb_halo_h2d"] + x["own_send_edges"] + x["nb_send_edges"] > 0),
+         "trace": trace}
+    if chrome:
+        from sphgraph.trace import write_device_chrome_trace
+        write_device_chrome_trace(trace, Path(chrome) / f"device_{schedule}_dp{dp}_r{ranks}_s{streams}.json",
+                                  {"schedule": schedule, "ranks": ranks, "dp": dp, "particles": int(sim.n_total)})
     sim.compute.trace = None
     return r
 
@@ -128,13 +141,14 @@ def main(argv=None):
     ap.add_argument("--schedules", nargs="+", default=["production", "bulk-synchronous"])
     ap.add_argument("--streams", type=int, nargs="+", default=[1], help="1: a stream per lane; 0: default stream")
     ap.add_argument("--profile", default=None, help="append a cProfile of the timed steps (top 25) to this file")
+    ap.add_argument("--chrome", default=None, help="write each run's device timeline (Perfetto JSON) into this folder")
     ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     out = {"date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "command": " ".join(sys.argv), "runs": []}
     for dp in a.dp:
         for streams in a.streams:
             for sch in a.schedules:
-                r = run(dp, a.ranks, sch, streams, a.steps, a.warmup, a.trace_steps, a.precision, a.scene, a.profile)
+                r = run(dp, a.ranks, sch, streams, a.steps, a.warmup, a.trace_steps, a.precision, a.scene, a.profile, a.chrome)
                 out["runs"].append(r)
                 print(json.dumps({k: v for k, v in r.items() if k not in ("trace", "overlap")}), flush=True)
                 if a.json:

@@ -136,7 +136,35 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --steps 20 --top 45 ;;
     # mock ranks against single at 4.4 M, ROUNDS rounds (default 1), 52 timed steps
     mock-4m)  stage mock_4m 240 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 --warmup 2 \
-                --rounds "${ROUNDS:-1}" --json "$OUT/mock_4m.json" ;;
+                --rounds "${ROUNDS:-1}" --transport "${TRANSPORT:-auto}" --json "$OUT/mock_4m.json" ;;
+    # the mock's virtual clock from the device's task times (predicted) against the wall clock,
+    # 1, 2 and 4 mock ranks at 4.4 M, and --comm single
+    predict)  stage predict 200 bash -c "for r in 1 2 4; do python3 -m sphgraph bench examples/spheric2.toml \
+                --dp 0.006 --steps 30 --warmup 3 --backend numba-cuda --comm mock --ranks \$r; done; \
+                python3 -m sphgraph bench examples/spheric2.toml --dp 0.006 --steps 30 --warmup 3 \
+                --backend numba-cuda" ;;
+    # the GPU tests of this session's kernels: shifting, DuFort-Frankel, Riemann, mDBC, ipc under
+    # mpiexec -n 2 and -n 4
+    tests-new) stage tests_new 420 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_shifting_cuda.py \
+                tests/test_cuda_dufort.py tests/test_cuda_riemann.py tests/test_cuda_mdbc.py tests/test_cuda_halo.py ;;
+    tests-fine) stage tests_fine 420 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_fine_runs_gpu.py ;;
+    # two and four processes on the one GPU under CUDA MPS (issue 21 §3), ipc halos
+    mps)      export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
+              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
+              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+              stage mps2 300 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 2 --steps 30 --warmup 3 \
+                --schedules production bulk-synchronous --transports ipc --json "$OUT/mps2.json"
+              stage mps4 200 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
+                --schedules production --transports ipc --json "$OUT/mps4.json"
+              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+    # the device timeline of 2 mock ranks at 4.4 M, production and bulk-synchronous (Perfetto JSON)
+    lanes-trace) stage lanes_trace 200 python3 benchmarks/gpu_lanes.py --dp 0.006 --ranks 2 --steps 10 --warmup 3 \
+                --trace-steps 2 --schedules production bulk-synchronous --chrome "$OUT" --json "$OUT/lanes_trace.json" ;;
+    # CPU under real MPI on the 16 cores (issue 21 §6): Yeh & Petroff at dp 0.0045 (1.0 M particles),
+    # 1 x 16 threads, mpiexec -n 2 x 8, -n 4 x 4
+    cpu-mpi)  stage cpu_mpi 300 bash -c "NUMBA_NUM_THREADS=16 python3 -m sphgraph bench examples/yeh_petroff.toml \
+                --dp 0.0045 --steps 8 --warmup 2; for n in 2 4; do mpiexec -n \$n env NUMBA_NUM_THREADS=\$((16 / n)) \
+                python3 -m sphgraph bench examples/yeh_petroff.toml --dp 0.0045 --steps 8 --warmup 2 --comm mpi; done" ;;
     # the fine runs of issue 22 §1 on the GPU, float32 (benchmarks/fine_runs.py), one log each
     fine)     stage fine_yeh 400 python3 benchmarks/fine_runs.py yeh_petroff --dp 0.0085 --backend numba-cuda \
                 --precision float32

@@ -62,8 +62,10 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
         "halo_transport": sim.halo_transport,
         "dp": sim.scene.dp, "device": sim.compute.device_name(), "version": __version__,
         "virtual_time": bool(sim.comm.virtual_time),
-        # mock MPI: the virtual clock (the cost model's durations), a prediction, not a measurement
+        # mock MPI: the virtual clock (durations from the cost model, or the device's own task
+        # times on numba-cuda), a prediction of the ranks' speed, not a measurement
         "predicted_wall_s": predicted,
         "predicted_steps_per_s": None if not predicted else steps / predicted,
-        "task_seconds_are": "predicted (virtual clock)" if sim.comm.virtual_time else "measured",
+        "predicted_from": sim.comm.clock if sim.comm.virtual_time else None,
+        "task_seconds_are": f"predicted (virtual clock: {sim.comm.clock})" if sim.comm.virtual_time else "measured",
     }

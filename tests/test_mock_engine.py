@@ -11,6 +11,7 @@ from conftest import example
 from sphgraph import Scene, Schedule, Simulation
 from sphgraph import perfmodel as cm
 from sphgraph.backends.comm.mock import Engine, MockComm, run_programs
+from sphgraph.backends.compute.numba_cpu import NumbaCPU
 from sphgraph.errors import DeadlockError, InputError
 from sphgraph.graph.task import Message, Task
 from sphgraph.graph.tasks import tag_edges
@@ -173,6 +174,49 @@ def test_wall_timing_mode():
     assert (d >= 0).all() and d.sum() > 0
 
 
+class _ClockedCPU(NumbaCPU):
+    """numba-cpu with a fake device clock: every task takes (rank + 1) ms of 'device' time
+    once it has run twice (a device clock reads the events of two steps before)."""
+
+    has_device_clock = True
+
+    def __init__(self):
+        super().__init__()
+        self.started, self.seen = 0, {}
+
+    def start_task_clock(self):
+        self.started += 1
+
+    def task_device_seconds(self, state, task):
+        key = (state.rank, task.name)
+        self.seen[key] = self.seen.get(key, 0) + 1
+        return (state.rank + 1) * 1e-3 if self.seen[key] > 2 else None
+
+
+@pytest.mark.parametrize("timing", ["auto", "device"])
+def test_device_timing_takes_the_backends_task_times(timing):
+    sim = Simulation(small(), backend=_ClockedCPU, comm="mock", ranks=3, comm_options={"timing": timing})
+    for _ in range(5):
+        sim.step()
+    cols = sim.scheduler.times.columns()
+    assert sim.compute.started == 1 and sim.comm.clock == "device task times"
+    late = (cols["step"] >= 3) & np.array([not t.startswith(("dt_allreduce", "recv_")) for t in cols["task"]])
+    d = (cols["end"] - cols["start"])[late]
+    np.testing.assert_allclose(d, (cols["rank"][late] + 1) * 1e-3, rtol=1e-9)
+    first = cols["step"] == cols["step"].min()
+    m = Simulation(small(), comm="mock", ranks=3)        # the model's durations differ
+    m.step()
+    assert m.comm.clock == "cost model"
+    assert not np.allclose((cols["end"] - cols["start"])[first][:5], 1e-3)
+
+
+def test_auto_timing_without_a_device_clock_is_the_model():
+    _, auto = timing_of(steps=3)
+    _, model = timing_of(steps=3, timing="model")
+    for k in auto:
+        assert np.array_equal(auto[k], model[k]), k
+
+
 def test_bad_options_are_input_errors():
     with pytest.raises(InputError, match="rank_speed"):
         MockComm(ranks=3, rank_speed=[1, 2])
@@ -268,3 +312,27 @@ def test_shipped_cost_fit_loads_and_states_its_error():
     samples = measure_runs([(example("dambreak2d.toml"), 0.04)], steps=4)
     labels = {s[0] for s in samples}
     assert {"forces_interior", "build_cells", "integrate"} <= labels
+
+
+def test_device_timeline_as_chrome_trace(tmp_path):
+    """A device timeline (NumbaCUDA.device_trace's rows) as Perfetto JSON: a process per rank,
+    a thread per lane, copies on their own thread, microseconds."""
+    import json
+
+    from sphgraph.trace import write_device_chrome_trace
+    trace = [{"rank": 0, "step": 4, "task": "forces_interior@1", "lane": "compute", "inside": None,
+              "start": 0.010, "end": 0.012},
+             {"rank": 1, "step": 4, "task": "send_edges@1", "lane": "comm", "inside": None,
+              "start": 0.0105, "end": 0.0106},
+             {"rank": 1, "step": 4, "task": "edge_d2h", "lane": "comm", "inside": "send_edges@1",
+              "start": 0.0105, "end": 0.01055}]
+    path = write_device_chrome_trace(trace, tmp_path / "dev.json", {"ranks": 2})
+    doc = json.loads(open(path).read())
+    x = [e for e in doc["traceEvents"] if e["ph"] == "X"]
+    assert [e["name"] for e in x] == ["forces_interior@1", "send_edges@1", "edge_d2h"]
+    assert x[0]["ts"] == pytest.approx(10000.0) and x[0]["dur"] == pytest.approx(2000.0)
+    names = {(e["pid"], e["tid"]): e["args"]["name"] for e in doc["traceEvents"] if e["name"] == "thread_name"}
+    assert names[(1, x[2]["tid"])] == "copies" and names[(1, x[1]["tid"])] == "comm"
+    assert {e["args"]["name"] for e in doc["traceEvents"] if e["name"] == "process_name"} == \
+        {"rank 0 (device)", "rank 1 (device)"}
+    assert doc["otherData"]["ranks"] == 2

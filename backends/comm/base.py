@@ -22,6 +22,7 @@ class CommBackend:
 
     name = "base"
     virtual_time = False   # True when task times are simulated seconds
+    clock = "wall"         # what the task times are: "wall", or a virtual clock's source
     one_process = False    # every rank in this process: a message may carry device buffers as they are
 
     def __init__(self, ranks: int = 1, halo_transport: str = "auto", **options):

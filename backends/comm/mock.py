@@ -11,9 +11,12 @@ collective that not every rank has reached. Then:
   collective  (dt_allreduce) completes on every rank at max(arrival clocks) +
               2 ceil(log2 N) latency + its cost; the value is the min over ranks.
 
-Durations: the cost model (`costmodel.CostModel`, per task kind a + b·particles
-+ c·pairs) divided by `rank_speed[rank]` by default, or the body's measured wall
-time divided by `rank_speed[rank]` with `timing="wall"`.
+Durations (`timing`): "model", the cost model (`perfmodel.CostModel`, per task kind
+a + b·particles + c·pairs) divided by `rank_speed[rank]`; "wall", the body's measured
+wall time divided by `rank_speed[rank]`; "device", the task's device time as the
+compute backend measured it (`ComputeBackend.task_device_seconds`: numba-cuda's timing
+events, the reading of two steps before; the model until a task has one); "auto" (the
+default), "device" on a backend with a device clock, else "model".
 
 Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
   rank_speed  list of relative throughputs (2 = twice as fast), default all 1
@@ -29,7 +32,7 @@ Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
   seed        random seed of delay / reorder / duplicate / loss
   watchdog    virtual seconds a rank may wait in one receive or collective before the run
               stops with CommError naming the rank, task, step and peer (0 = off, the default)
-  timing      "model" (default) or "wall"
+  timing      "auto" (default), "model", "wall" or "device" (see Durations)
   mode        "execute" (real kernels) or "predict" (modelled costs, no task bodies)
   costs       cost model: None (shipped fit), a dict {kind: [a, b, c]}, a TOML path
 
@@ -405,17 +408,18 @@ class MockComm(CommBackend):
 
     virtual_time = True
     one_process = True
+    clock = "cost model"
 
     def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
-                 delay=0.0, reorder=False, seed=0, timing="model", mode="execute", costs=None,
+                 delay=0.0, reorder=False, seed=0, timing="auto", mode="execute", costs=None,
                  duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="auto", **options):
         if options:
             raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
                              "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs, "
                              "duplicate, loss, watchdog, halo_transport")
         super().__init__(ranks, halo_transport)
-        if timing not in ("model", "wall"):
-            raise InputError(f"--comm mock: timing: expected 'model' or 'wall', got {timing!r}")
+        if timing not in ("auto", "model", "wall", "device"):
+            raise InputError(f"--comm mock: timing: expected 'auto', 'model', 'wall' or 'device', got {timing!r}")
         if mode not in ("execute", "predict"):
             raise InputError(f"--comm mock: mode: expected 'execute' or 'predict', got {mode!r}")
         speed = [1.0] * ranks if rank_speed is None else [float(s) for s in rank_speed]
@@ -432,6 +436,7 @@ class MockComm(CommBackend):
         self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed, duplicate, loss, watchdog)
         self.endpoints = [MockEndpoint(self.engine, r) for r in range(ranks)]
         self._k = {}
+        self._clock_started = False
 
     @property
     def local_ranks(self) -> list[int]:
@@ -477,6 +482,13 @@ class MockComm(CommBackend):
         ctxs = {ctx.rank: ctx for ctx, _ in jobs}
         programs = {ctx.rank: prog for ctx, prog in jobs}
         wall = self.timing == "wall"
+        compute = jobs[0][0].compute if jobs else None
+        device = self.timing == "device" or (self.timing == "auto" and compute is not None and
+                                             compute.has_device_clock)
+        if device and not self._clock_started:
+            compute.start_task_clock()
+            self._clock_started = True
+        self.clock = "device task times" if device else "task bodies' wall time" if wall else "cost model"
         eng.step = _step_of(jobs)
 
         def body(r, task):
@@ -487,9 +499,14 @@ class MockComm(CommBackend):
             if task.fn is not None:
                 task.fn(ctxs[r], task)
             w = time.perf_counter() - t0
+            if wall:
+                return w / self.rank_speed[r]
+            if device:
+                d = ctxs[r].compute.task_device_seconds(ctxs[r].state, task)
+                if d is not None:
+                    return d / self.rank_speed[r]
             moved = ep.received_rows + sum(_rows(p) for _, _, p in ep.outbox)
-            dur = w / self.rank_speed[r] if wall else self._model_seconds(ctxs[r], task, moved)
-            return dur
+            return self._model_seconds(ctxs[r], task, moved)
 
         def run_task(r, task, rec):
             ep = self.endpoints[r]

@@ -190,6 +190,17 @@ class ComputeBackend:
     def lane_end(self, state, task, step) -> None:
         """After a task body, when `uses_lanes`."""
 
+    # -- the device's own task clock (mock MPI's timing = "device") ---------------------
+    has_device_clock = False  # True: start_task_clock / task_device_seconds measure device time
+
+    def start_task_clock(self) -> None:
+        """From now on, measure each task's device time (a backend with `has_device_clock`)."""
+
+    def task_device_seconds(self, state, task) -> float | None:
+        """Device seconds of `task`'s work on this rank, as last measured (None: no device
+        clock, or not measured yet)."""
+        return None
+
 
 # particle shifting (sphgraph.shifting): partial sums per source set, added in this order
 SHIFT_PARTS = ("interior", "halo_1", "halo_2", "halo_3")

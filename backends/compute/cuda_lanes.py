@@ -136,6 +136,8 @@ class CudaLanes:
         L.current, L.task = s, task.name
         if self.trace is not None:
             self._mark(state, task.name, step.lane, True)
+        if self.task_clock is not None:
+            self._clock_begin(state, task, s)
 
     def lane_end(self, state, task, step) -> None:
         """After a task body: its event (when a task on another lane depends on it), the
@@ -144,6 +146,8 @@ class CudaLanes:
         s = L.current
         if self.trace is not None:
             self._mark(state, task.name, step.lane, False)
+        if self.task_clock is not None:
+            self.task_clock[(state.rank, task.name)][2][2].record(s)
         if step.record:
             L.event(L.events, task.name).record(s)
             self._log(state, "record", task.name, step.lane)
@@ -156,6 +160,31 @@ class CudaLanes:
                 L.event(L.tails, lane).record(st)
                 self._log(state, "record_tail", task.name, lane)
         L.current = L.task = None
+
+    # -- the device's task clock (timing events; off unless start_task_clock) -------------
+    def start_task_clock(self) -> None:
+        """Time every task on its stream from now on: a (start, end) event pair per rank,
+        task and step parity, made once and recorded again two steps later, when the
+        pair's last reading is read (the rank's host has waited for the device since)."""
+        if self.task_clock is None:
+            self.task_clock = {}
+
+    def _clock_begin(self, state, task, s) -> None:
+        key = (state.rank, task.name)
+        e = self.task_clock.get(key)
+        if e is None:
+            # [last seconds, two slots [recorded?, start, end], the slot of the running task]
+            e = self.task_clock[key] = [None, [[False, new_event(True), new_event(True)] for _ in range(2)], None]
+        slot = e[1][state.step % 2]
+        if slot[0] and slot[2].query():
+            e[0] = slot[1].elapsed_time(slot[2]) * 1e-3
+        slot[0] = True
+        e[2] = slot
+        slot[1].record(s)
+
+    def task_device_seconds(self, state, task):
+        e = None if self.task_clock is None else self.task_clock.get((state.rank, task.name))
+        return None if e is None else e[0]
 
     # -- device trace (timing events; off unless start_device_trace) ---------------------
     def start_device_trace(self) -> None:

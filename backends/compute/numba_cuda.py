@@ -81,6 +81,8 @@ class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, Cu
         self.lanes: dict = {}          # rank -> Lanes
         self.lane_log = None           # a list: every event record / wait appended (tests)
         self.trace = None              # a list: timing events per task and copy (start_device_trace)
+        self.task_clock = None         # {(rank, task): timing events} (start_task_clock)
+        self.has_device_clock = self.uses_lanes and not CK.SIMULATOR   # the clock's events ride the lane hooks
         _select_device()
 
     @classmethod
