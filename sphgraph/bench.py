@@ -5,6 +5,8 @@ import time
 
 from . import __version__
 
+PREDICT_STEPS = 10   # steps of a device-timed prediction window (each task alone on the device)
+
 
 def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", ranks=1,
           schedule="production", precision=None, dp=None, comm_options=None,
@@ -46,11 +48,23 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
     if not sim.comm.is_root:
         return None
     evals = steps * sim.stages
-    task_s = sim.scheduler.times.seconds_by_kind(first_step=first)
-    # the speed is the wall clock; a mock run's virtual clock is the cost model's prediction
+    # the speed is the wall clock; a mock run's virtual clock is a prediction: over the timed
+    # steps (the cost model), or, where the clock can read the device, over PREDICT_STEPS
+    # steps after them with every task timed alone on the device (the timed steps stay free
+    # of that synchronisation), scaled to `steps`
+    times, scale, predict_steps = sim.scheduler.times, 1.0, steps
+    if sim.comm.device_clock_window(True):
+        predict_steps = min(steps, PREDICT_STEPS)
+        times.clear()
+        first = sim.step_count
+        for _ in range(predict_steps):
+            sim.step()
+        sim.comm.device_clock_window(False)
+        scale = steps / predict_steps
+    task_s = {k: v * scale for k, v in times.seconds_by_kind(first_step=first).items()}
     predicted = None
-    if sim.comm.virtual_time and sim.scheduler.times.end:
-        predicted = max(sim.scheduler.times.end) - min(sim.scheduler.times.start)
+    if sim.comm.virtual_time and times.end:
+        predicted = (max(times.end) - min(times.start)) * scale
     return {
         "scene": sim.scene.name, "particles": sim.n_total, "fluid_particles": sim.n_fluid, "dim": sim.dim,
         "steps": steps, "wall_s": wall, "compile_s": compile_s, "setup_s": setup_s,
@@ -68,4 +82,5 @@ def bench(scene, *, steps=50, warmup=5, backend="numba-cpu", comm="single", rank
         "predicted_steps_per_s": None if not predicted else steps / predicted,
         "predicted_from": sim.comm.clock if sim.comm.virtual_time else None,
         "task_seconds_are": f"predicted (virtual clock: {sim.comm.clock})" if sim.comm.virtual_time else "measured",
+        "predict_steps": predict_steps if sim.comm.virtual_time else None,
     }

@@ -175,39 +175,77 @@ def test_wall_timing_mode():
 
 
 class _ClockedCPU(NumbaCPU):
-    """numba-cpu with a fake device clock: every task takes (rank + 1) ms of 'device' time
-    once it has run twice (a device clock reads the events of two steps before)."""
+    """numba-cpu with a stand-in device clock (the real one, numba-cuda's timing events, runs
+    in the GPU tests): every task takes (rank + 1) ms of 'device' time while the clock runs."""
 
     has_device_clock = True
 
     def __init__(self):
         super().__init__()
-        self.started, self.seen = 0, {}
+        self.started, self.stopped, self.on = 0, 0, False
 
     def start_task_clock(self):
         self.started += 1
+        self.on = True
+
+    def stop_task_clock(self):
+        self.stopped += 1
+        self.on = False
 
     def task_device_seconds(self, state, task):
-        key = (state.rank, task.name)
-        self.seen[key] = self.seen.get(key, 0) + 1
-        return (state.rank + 1) * 1e-3 if self.seen[key] > 2 else None
+        return (state.rank + 1) * 1e-3 if self.on else None
 
 
-@pytest.mark.parametrize("timing", ["auto", "device"])
-def test_device_timing_takes_the_backends_task_times(timing):
-    sim = Simulation(small(), backend=_ClockedCPU, comm="mock", ranks=3, comm_options={"timing": timing})
-    for _ in range(5):
+def _device_durations_hold(cols, steps):
+    late = np.isin(cols["step"], steps) & np.array([not t.startswith(("dt_allreduce", "recv_")) for t in cols["task"]])
+    d = (cols["end"] - cols["start"])[late]
+    return np.allclose(d, (cols["rank"][late] + 1) * 1e-3, rtol=1e-9)
+
+
+def test_device_timing_takes_the_backends_task_times():
+    sim = Simulation(small(), backend=_ClockedCPU, comm="mock", ranks=3, comm_options={"timing": "device"})
+    for _ in range(3):
         sim.step()
     cols = sim.scheduler.times.columns()
-    assert sim.compute.started == 1 and sim.comm.clock == "device task times"
-    late = (cols["step"] >= 3) & np.array([not t.startswith(("dt_allreduce", "recv_")) for t in cols["task"]])
-    d = (cols["end"] - cols["start"])[late]
-    np.testing.assert_allclose(d, (cols["rank"][late] + 1) * 1e-3, rtol=1e-9)
-    first = cols["step"] == cols["step"].min()
+    assert sim.compute.started == 1 and sim.compute.stopped == 0 and sim.comm.clock == "device task times"
+    assert _device_durations_hold(cols, np.unique(cols["step"]))
     m = Simulation(small(), comm="mock", ranks=3)        # the model's durations differ
     m.step()
     assert m.comm.clock == "cost model"
+    first = cols["step"] == cols["step"].min()
     assert not np.allclose((cols["end"] - cols["start"])[first][:5], 1e-3)
+
+
+def test_auto_timing_reads_the_device_only_inside_a_window():
+    sim = Simulation(small(), backend=_ClockedCPU, comm="mock", ranks=3)
+    assert not sim.comm.device_clock_window(True)      # no step yet: no compute backend known
+    sim.comm.device_clock_window(False)
+    sim.step()
+    assert sim.comm.clock == "cost model" and sim.compute.started == 0
+    assert sim.comm.device_clock_window(True)
+    sim.step()
+    sim.step()
+    assert sim.comm.clock == "device task times" and sim.compute.on
+    assert sim.comm.device_clock_window(False)
+    sim.step()
+    assert sim.comm.clock == "cost model" and not sim.compute.on
+    assert (sim.compute.started, sim.compute.stopped) == (1, 1)
+    cols = sim.scheduler.times.columns()
+    steps = np.unique(cols["step"])
+    assert _device_durations_hold(cols, steps[1:3]) and not _device_durations_hold(cols, steps[3:])
+    # a model-timed mock (or any comm without a device clock) opens no window
+    assert not Simulation(small(), comm="mock", ranks=2, comm_options={"timing": "model"}).comm.device_clock_window(True)
+
+
+def test_bench_predicts_from_a_device_window_after_its_timed_steps():
+    from sphgraph.bench import PREDICT_STEPS, bench
+    for steps in (4, PREDICT_STEPS + 2):
+        r = bench(small(), steps=steps, warmup=1, backend=_ClockedCPU, comm="mock", ranks=2)
+        assert r["predict_steps"] == min(steps, PREDICT_STEPS) and r["predicted_from"] == "device task times"
+        # the window's device times, scaled to the timed steps: 1 ms on rank 0 and 2 ms on rank 1
+        # a task; the slower rank paces the step
+        assert r["task_seconds"]["forces_interior"] == pytest.approx(steps * 3e-3, rel=1e-9)
+        assert r["predicted_wall_s"] >= steps * 2e-3 * 6
 
 
 def test_auto_timing_without_a_device_clock_is_the_model():

@@ -69,6 +69,13 @@ class CommBackend:
     def barrier(self) -> None:
         """Wait until every rank's process gets here (nothing to wait for in one process)."""
 
+    def device_clock_window(self, on: bool) -> bool:
+        """A virtual clock timed by the device: from the next step on (on), take task
+        durations from the compute backend's own device task times, each task alone on the
+        device; off: back to the clock's usual source. True when the clock's source changed
+        (False by default: no virtual clock, or one that never reads the device)."""
+        return False
+
     def first_problem(self, found):
         """The lowest rank's end-of-step problem (or None), the same on every rank;
         `found` is this process's first. One process holds every rank by default."""

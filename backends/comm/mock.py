@@ -15,8 +15,10 @@ Durations (`timing`): "model", the cost model (`perfmodel.CostModel`, per task k
 a + b·particles + c·pairs) divided by `rank_speed[rank]`; "wall", the body's measured
 wall time divided by `rank_speed[rank]`; "device", the task's device time as the
 compute backend measured it (`ComputeBackend.task_device_seconds`: numba-cuda's timing
-events, the reading of two steps before; the model until a task has one); "auto" (the
-default), "device" on a backend with a device clock, else "model".
+events around each task run alone on the device -- the mock's ranks share one device, whose
+other ranks' kernels would otherwise stretch a rank's times; the model without a device
+clock); "auto" (the default), the model, and "device" inside `device_clock_window(True)` on
+a backend with a device clock (`sphgraph bench` opens one after its timed steps).
 
 Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
   rank_speed  list of relative throughputs (2 = twice as fast), default all 1
@@ -436,7 +438,9 @@ class MockComm(CommBackend):
         self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed, duplicate, loss, watchdog)
         self.endpoints = [MockEndpoint(self.engine, r) for r in range(ranks)]
         self._k = {}
-        self._clock_started = False
+        self._clock_on = False     # the compute backend's device task clock is running
+        self._window = False       # device_clock_window(True): timing "auto" reads the device
+        self._compute = None       # the compute backend of the last step
 
     @property
     def local_ranks(self) -> list[int]:
@@ -451,8 +455,15 @@ class MockComm(CommBackend):
     def allreduce(self, value, op):
         return value      # every rank is local: the caller's value is already global
 
-    def clock(self) -> float:
-        return max(self.engine.clock)
+    def device_clock_window(self, on: bool) -> bool:
+        """timing "auto" on a backend with a device clock: the cost model's durations, but the
+        device's own (isolated) task times inside a window -- isolating the tasks costs the
+        wall clock a device synchronisation a task, which ordinary steps must not pay."""
+        was = self._window
+        self._window = bool(on)
+        c = self._compute
+        return (self.timing == "auto" and self.mode == "execute" and c is not None
+                and c.has_device_clock and was != self._window)
 
     # -- durations ---------------------------------------------------------------------
     def _pairs_k(self, ctx):
@@ -483,11 +494,12 @@ class MockComm(CommBackend):
         programs = {ctx.rank: prog for ctx, prog in jobs}
         wall = self.timing == "wall"
         compute = jobs[0][0].compute if jobs else None
-        device = self.timing == "device" or (self.timing == "auto" and compute is not None and
-                                             compute.has_device_clock)
-        if device and not self._clock_started:
-            compute.start_task_clock()
-            self._clock_started = True
+        self._compute = compute
+        device = compute is not None and compute.has_device_clock and (
+            self.timing == "device" or (self.timing == "auto" and self._window))
+        if device != self._clock_on:
+            compute.start_task_clock() if device else compute.stop_task_clock()
+            self._clock_on = device
         self.clock = "device task times" if device else "task bodies' wall time" if wall else "cost model"
         eng.step = _step_of(jobs)
 

@@ -194,11 +194,16 @@ class ComputeBackend:
     has_device_clock = False  # True: start_task_clock / task_device_seconds measure device time
 
     def start_task_clock(self) -> None:
-        """From now on, measure each task's device time (a backend with `has_device_clock`)."""
+        """From now on, measure each task's device time (a backend with `has_device_clock`),
+        each task alone on the device: ranks that share a device must not stretch each
+        other's times, which are to stand for a device each."""
+
+    def stop_task_clock(self) -> None:
+        """Stop measuring task times (tasks overlap on the device again)."""
 
     def task_device_seconds(self, state, task) -> float | None:
-        """Device seconds of `task`'s work on this rank, as last measured (None: no device
-        clock, or not measured yet)."""
+        """Device seconds of `task`'s work on this rank, the run just finished (None: no
+        device clock, or the clock is off)."""
         return None
 
 

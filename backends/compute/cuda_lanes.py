@@ -147,7 +147,7 @@ class CudaLanes:
         if self.trace is not None:
             self._mark(state, task.name, step.lane, False)
         if self.task_clock is not None:
-            self.task_clock[(state.rank, task.name)][2][2].record(s)
+            self._clock_end(state, task, s)
         if step.record:
             L.event(L.events, task.name).record(s)
             self._log(state, "record", task.name, step.lane)
@@ -163,24 +163,31 @@ class CudaLanes:
 
     # -- the device's task clock (timing events; off unless start_task_clock) -------------
     def start_task_clock(self) -> None:
-        """Time every task on its stream from now on: a (start, end) event pair per rank,
-        task and step parity, made once and recorded again two steps later, when the
-        pair's last reading is read (the rank's host has waited for the device since)."""
-        if self.task_clock is None:
-            self.task_clock = {}
+        """Time every task on its stream from now on, alone: a (start, end) event pair per
+        rank and task, and the host waits for the device at the task's end. Mock ranks
+        share this one device; timed while other ranks' kernels ran beside them, a rank's
+        tasks took up to twice their own time (its receives the senders' too), which no
+        longer stood for a device of its own. The wall clock of such steps is not the
+        path's speed: `sphgraph bench` times its steps with the clock off."""
+        cuda.synchronize()
+        self.task_clock = {}
+
+    def stop_task_clock(self) -> None:
+        self.task_clock = None
 
     def _clock_begin(self, state, task, s) -> None:
         key = (state.rank, task.name)
         e = self.task_clock.get(key)
         if e is None:
-            # [last seconds, two slots [recorded?, start, end], the slot of the running task]
-            e = self.task_clock[key] = [None, [[False, new_event(True), new_event(True)] for _ in range(2)], None]
-        slot = e[1][state.step % 2]
-        if slot[0] and slot[2].query():
-            e[0] = slot[1].elapsed_time(slot[2]) * 1e-3
-        slot[0] = True
-        e[2] = slot
-        slot[1].record(s)
+            e = self.task_clock[key] = [None, new_event(True), new_event(True)]   # [seconds, start, end]
+        e[0] = None
+        e[1].record(s)
+
+    def _clock_end(self, state, task, s) -> None:
+        e = self.task_clock[(state.rank, task.name)]
+        e[2].record(s)
+        cuda.synchronize()      # the next task starts on an idle device
+        e[0] = e[1].elapsed_time(e[2]) * 1e-3
 
     def task_device_seconds(self, state, task):
         e = None if self.task_clock is None else self.task_clock.get((state.rank, task.name))
