@@ -97,12 +97,16 @@ class Slabs:
         if rows:
             state.particles = Particles.concat([state.particles] + rows)
 
+    def edge_rows(self, state, direction: int) -> np.ndarray:
+        """The owned rows within `reach` of the neighbour's slab in `direction` (-1 lower,
+        +1 upper), in row order: the edge's rows, in the edge's order."""
+        x = state.particles.pos[:, self.axis]
+        return np.nonzero(x < self.lo + self.reach)[0] if direction < 0 else np.nonzero(x >= self.hi - self.reach)[0]
+
     def edge(self, state, direction: int) -> Halo:
         """Rows within `reach` of the neighbour's slab in `direction` (-1 lower, +1 upper)."""
         p = state.particles
-        x = p.pos[:, self.axis]
-        sel = np.nonzero(x < self.lo + self.reach)[0] if direction < 0 else \
-            np.nonzero(x >= self.hi - self.reach)[0]
+        sel = self.edge_rows(state, direction)
         h = Halo(pos=p.pos[sel], vel=p.vel[sel], rho=p.rho[sel], kind=p.kind[sel])
         state.bytes_sent += h.nbytes()
         return h

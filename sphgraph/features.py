@@ -9,7 +9,10 @@ by :func:`task_kinds` and run through the scheduler like the others:
 
 ========================  =============================================================
 ``mdbc@s``                boundary densities and velocities from the fluid at their ghost
-                          nodes, before the stage's forces (``[physics] boundary``)
+                          nodes, before the stage's forces (``[physics] boundary``); on
+                          several ranks the ghosts also sum the halos' fluid rows
+``send_mdbc@s``,          several ranks: the new values of the edge's boundary rows, sent
+``recv_mdbc_1/2@s``       to the neighbours, whose halos held the values from before mdbc
 ``forces_images@s``       the rows against the periodic images of their own rows (part
                           ``halo_3``)
 ``shift_interior``, ...   the shifting sums of each source set (interior, images, halo 1,
@@ -34,7 +37,9 @@ import numpy as np
 from .graph.kinds import TaskKind as K
 
 SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
-MDBC_SUPPORTED = "--backend numba-cpu or numba-cuda, one rank, no [[motion]] bodies"
+MDBC_SUPPORTED = ("--backend numba-cpu (one rank or several) or numba-cuda (one rank), no [[motion]] "
+                  "bodies, no periodic axes on several ranks")
+MDBC_KINDS = (K.MDBC, K.SEND_MDBC, K.RECV_MDBC_1, K.RECV_MDBC_2)
 
 
 def image_axes(scene, split_axis, nranks: int) -> list[int]:
@@ -61,7 +66,7 @@ def task_kinds(scene, split_axis=None, nranks: int = 1, sample: bool = False) ->
     ph = scene.physics
     out = set()
     if ph.boundary != "dbc":
-        out.add(K.MDBC)
+        out |= set(MDBC_KINDS)     # the exchange's kinds exist only with neighbours
     images = bool(image_axes(scene, split_axis, nranks))
     if images:
         out |= {K.FORCES_IMAGES, K.WRAP}
@@ -100,6 +105,18 @@ class Mdbc:
 
     def apply(self, ctx) -> None:
         ctx.compute.mdbc(ctx.state, self.boxes, self.det_min, self.noslip)
+
+    @staticmethod
+    def ghost_reach(scene, particles, axis: int) -> float:
+        """How far along `axis` a boundary row's ghost node lies from it (the most over the
+        scene's boundary rows): the halos must reach that much further than 2h, so that the
+        ghost of a row near a cut finds all its fluid."""
+        from .physics.mdbc import ghost_positions, interface_boxes
+        b = particles.kind != 0
+        if not b.any():
+            return 0.0
+        pos = np.asarray(particles.pos[b], np.float64)
+        return float(np.abs(ghost_positions(pos, interface_boxes(scene))[:, axis] - pos[:, axis]).max())
 
 
 class Features:
@@ -141,11 +158,27 @@ class Features:
             raise InputError(f"{s.source}: physics.shifting: expected \"none\" with --backend {name} (it has "
                              f"no particle shifting; use numba-cpu), got {ph.shifting!r}")
         if ph.boundary != "dbc":
-            why = (f"--backend {name}" if "mdbc" not in have else f"{nranks} ranks" if nranks != 1
+            why = (f"--backend {name}" if "mdbc" not in have
+                   else f"{nranks} ranks on --backend {name}" if nranks != 1 and "mdbc-ranks" not in have
+                   else "periodic axes on several ranks" if nranks != 1 and s.periodic
                    else "[[motion]] bodies" if s.extra.get("motion") else None)
             if why is not None:
                 raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "
                                  f"(or use boundary = \"dbc\"), got {why}")
+
+    def check_schedule(self, schedule, nranks: int) -> None:
+        """mDBC on several ranks: the schedule must bring both halos before the stage's first
+        force task (where `mdbc` goes), since the ghosts near a cut sum the neighbour's fluid."""
+        from .errors import InputError
+        if K.MDBC not in self.kinds or nranks == 1:
+            return
+        labels = schedule.labels(self.kinds)
+        late = [h for h in ("recv_halo_1", "recv_halo_2") if h in labels and labels.index(h) > labels.index("mdbc")]
+        if late:
+            raise InputError(f"{schedule.source}: order: physics.boundary \"{self.scene.physics.boundary}\" on "
+                             f"{nranks} ranks needs {' and '.join(late)} before the stage's first force task "
+                             f"(mdbc's ghosts near a cut sum the neighbour's fluid): expected a schedule with both "
+                             f"halos before the forces (e.g. --schedule bulk-synchronous), got {schedule.name!r}")
 
     def attach(self, sim, particles) -> None:
         """Build the features from the scene's initial ``particles`` and hand them to every rank."""

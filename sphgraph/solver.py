@@ -104,6 +104,7 @@ class Simulation:
         # mDBC, periodic images, shifting, moving bodies...: only what the scene asks, as tasks
         self.features = Features(scene, sample=sample)
         self.features.check_backend(compute_cls, self.nranks)
+        self.features.check_schedule(self.schedule, self.nranks)
         self.probe_sampler = self.features.probes   # its samples go into checkpoints and come back
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,
                                features=self.features.kinds)
@@ -149,6 +150,14 @@ class Simulation:
             axis, cuts, slabs = None, None, [blocks[0] if blocks else particles]
             self.axis = None
         self.contexts = []
+        reach = 2.2 * consts.h
+        from .features import MDBC_KINDS, Mdbc
+        if axis is not None and MDBC_KINDS[0] in self.features.kinds:   # the ghosts near a cut: see Mdbc
+            reach += Mdbc.ghost_reach(scene, particles, axis)
+            if reach > 6.0 * consts.h:   # a halo must come from the next slab alone (slabs are >= 6h)
+                raise InputError(f"{scene.source}: boundary: mDBC's ghost nodes lie {reach - 2.2 * consts.h:.4g} m "
+                                 f"from their rows along axis {'xyz'[axis]}: expected at most "
+                                 f"{3.8 * consts.h:.4g} m (3.8h) on several ranks (fewer boundary layers)")
         ref = particles.pos.min(axis=0) if self.nranks > 1 and particles.n else None
         for r in self.comm.local_ranks:
             st = RankState(particles=slabs[r], consts=consts, dtype=self.dtype, rank=r, nranks=self.nranks,
@@ -157,7 +166,7 @@ class Simulation:
             if axis is not None:
                 st.axis, st.cut_lo, st.cut_hi = axis, cuts[r], cuts[r + 1]
             self.compute.prepare(st)
-            dom = Slabs(r, axis, cuts, reach=2.2 * consts.h) if axis is not None else None
+            dom = Slabs(r, axis, cuts, reach=reach) if axis is not None else None
             bal = Balancer(self.balance_cfg, axis, consts.h, scene.dp) if self.rebalance else None
             self.contexts.append(RankContext(rank=r, state=st, compute=self.compute,
                                              comm=self.comm.endpoint(r), domain=dom,

@@ -28,6 +28,7 @@ class Halo:
     kind: np.ndarray
     press: np.ndarray | None = None
     cells: object = None
+    order: np.ndarray | None = None   # on receipt: the sender's edge row of each (binned) row
 
     @property
     def n(self) -> int:

@@ -5,6 +5,8 @@ Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`)
                       a small dam break for STEPS steps with --comm mpi; every step the
                       gathered ids equal the initial ids; rank 0 compares the final
                       positions (by id) with a single-rank run done here (comm single)
+  mdbc2d              the 2D dam break with `boundary = "mdbc-noslip"` (bulk-synchronous, push 2 m/s):
+                      the mDBC exchange under MPI against the single-rank run, to TOL
   schedules           every shipped schedule, each also with halo_order reversed, gives
                       bit-identical particles (STEPS_SCHED steps, 2D)
   conformance         the comm conformance behaviours (tests/test_comm_conformance.py)
@@ -72,6 +74,28 @@ def check_equiv(kind, push=0.0):
     ok = bad is None and np.array_equal(a["id"], ref["id"]) and err <= TOL * span
     return {"check": f"equiv{kind}" + ("-migrating" if push else ""), "ok": bool(ok), "ranks": comm.size, "steps": STEPS,
             "particles": int(len(a["id"])), "max_abs_err": err, "rel_err": err / span, "ids": bad or "ok"}
+
+
+def check_mdbc(steps=60):
+    from mpi4py import MPI
+
+    from sphgraph import Scene
+    comm = MPI.COMM_WORLD
+    sc = scene("2d")
+    d = sc.to_dict()
+    d["physics"] = dict(d.get("physics", {}), boundary="mdbc-noslip")
+    sc = Scene.from_dict(d)
+    sim, a, bad = run_sim(sc, "mpi", steps, schedule="bulk-synchronous", push=2.0)
+    if comm.rank != 0:
+        return None
+    _, ref, _ = run_sim(sc, "single", steps, schedule="bulk-synchronous", check_ids=False, push=2.0)
+    span = float(np.max(np.asarray(sc.domain_max) - np.asarray(sc.domain_min)))
+    same = a["id"].shape == ref["id"].shape
+    err = float(np.abs(a["position"] - ref["position"]).max()) if same else np.inf
+    rho = float(np.abs(a["density"] / ref["density"] - 1).max()) if same else np.inf
+    ok = bad is None and np.array_equal(a["id"], ref["id"]) and err <= TOL * span and rho <= TOL
+    return {"check": "mdbc2d", "ok": bool(ok), "ranks": comm.size, "steps": steps, "rel_err": err / span,
+            "density_rel_err": rho, "ids": bad or "ok"}
 
 
 def check_schedules():
@@ -174,7 +198,7 @@ def check_cuda_ipc(steps=20):
 
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
           "cuda-ipc": check_cuda_ipc,
-          "equiv2d-migrating": lambda: check_equiv("2d", 2.0),
+          "equiv2d-migrating": lambda: check_equiv("2d", 2.0), "mdbc2d": check_mdbc,
           "schedules": check_schedules, "conformance": check_conformance}
 
 

@@ -256,10 +256,11 @@ def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, caps
     assert np.abs(got["velocity"][wall]).max() > 0          # mirrored fluid velocity on the walls
     assert not np.array_equal(plain.frame_arrays()["density"], got["density"])   # DBC differs
     capsys.readouterr()
-    for flags in (["--comm", "mock", "--ranks", "2"],):   # numba-cuda runs it (tests/test_cuda_mdbc.py)
+    # several ranks need the halos before the forces (tests/test_mdbc_ranks.py): production is refused
+    for flags in (["--comm", "mock", "--ranks", "2"],):
         assert main(["run", str(path), "--out", str(tmp_path / "bad"), "--quiet", *flags]) == 2, flags
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "physics.boundary" in err[0] and "numba-cuda, one rank" in err[0], err
+        assert len(err) == 1 and "physics.boundary" in err[0] and "bulk-synchronous" in err[0], err
         assert not (tmp_path / "bad").exists()
     with pytest.raises(InputError, match=r"physics.boundary: expected one of \"dbc\", \"mdbc\", \"mdbc-noslip\""):
         Scene.from_dict(dbc.to_dict() | {"physics": {"boundary": "mDBC"}})

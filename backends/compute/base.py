@@ -164,6 +164,22 @@ class ComputeBackend:
 
 
     # -- scene features (sphgraph.features), for a backend that lists them in scene_features --
+    def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
+        """mDBC (sphgraph.physics.mdbc): each boundary row's density (and, `noslip`, velocity)
+        from the fluid at its ghost node: the owned fluid rows and the halos' ("mdbc" in
+        scene_features; the halos only with "mdbc-ranks")."""
+        raise NotImplementedError
+
+    def mdbc_edge(self, state, domain, direction: int):
+        """mDBC on several ranks ("mdbc-ranks"): [density, velocity...] of the boundary rows of
+        the edge towards `direction` (`Slabs.edge_rows`, in the edge's order), after mdbc."""
+        raise NotImplementedError
+
+    def mdbc_halo(self, state, halo, values) -> None:
+        """The neighbour's `mdbc_edge` values put on the boundary rows of `halo` (which hold
+        the values from before its mdbc), their pressures with them."""
+        raise NotImplementedError
+
     def shift_part(self, state, part: str, mode: int) -> None:
         """Particle shifting's partial sums of source set `part` ("interior", "halo_1",
         "halo_2", "halo_3": the periodic images), kept until `shift_displacement`."""

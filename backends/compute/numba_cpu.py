@@ -27,7 +27,7 @@ def _threads(n: int, rows_per_thread: int) -> None:
 @register("compute", "numba-cpu")
 class NumbaCPU(ComputeBackend):
     default_precision = "float64"
-    scene_features = frozenset({"shifting", "mdbc", "riemann", "diffusion_time"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time"})
 
     def device_name(self) -> str:
         return f"cpu ({numba.config.NUMBA_NUM_THREADS} threads)"
@@ -136,6 +136,7 @@ class NumbaCPU(ComputeBackend):
         halo.press = np.empty_like(halo.rho)
         K.pressure_into(halo.rho, state.prm, halo.press)
         halo.cells = grid
+        halo.order = perm
 
     # -- forces ------------------------------------------------------------------------
     def forces(self, state, part: str) -> None:
@@ -263,11 +264,43 @@ class NumbaCPU(ComputeBackend):
         ghost = ghost_positions(np.asarray(p.pos[rows], np.float64), boxes)
         rho_out = np.empty(len(rows))
         vel_out = np.zeros((len(rows), p.dim))
-        mdbc_boundary(rows, ghost, p.pos, p.vel, p.rho, p.kind, *state.cells.kernel_args(), state.prm,
-                      state.opt, det_min, noslip, rho_out, vel_out)
+        halos = [h for h in state.halos.values() if h is not None and h.n]
+        if not halos:
+            mdbc_boundary(rows, ghost, p.pos, p.vel, p.rho, p.kind, *state.cells.kernel_args(), state.prm,
+                          state.opt, det_min, noslip, rho_out, vel_out)
+        else:   # the ghosts near a cut reach into the halos: the owned and halo rows binned as one set
+            pos = np.concatenate([p.pos] + [h.pos for h in halos])
+            grid, perm = self._grid(state, pos)
+            at = np.empty_like(perm)
+            at[perm] = np.arange(len(perm))
+            pick = (lambda name: np.ascontiguousarray(
+                np.concatenate([getattr(p, name)] + [getattr(h, name) for h in halos])[perm]))
+            mdbc_boundary(at[rows], ghost, pos[perm], pick("vel"), pick("rho"), pick("kind"), *grid.kernel_args(),
+                          state.prm, state.opt, det_min, noslip, rho_out, vel_out)
         p.rho[rows] = rho_out
         p.vel[rows] = vel_out
         K.pressure_into(p.rho, state.prm, state.press)
+
+    def mdbc_edge(self, state, domain, direction: int):
+        p = state.particles
+        sel = domain.edge_rows(state, direction)
+        b = sel[p.kind[sel] != 0]
+        out = np.empty((len(b), 1 + p.dim), p.rho.dtype)
+        out[:, 0] = p.rho[b]
+        out[:, 1:] = p.vel[b]
+        return out
+
+    def mdbc_halo(self, state, halo, values) -> None:
+        if halo is None or halo.n == 0:
+            return
+        rows = np.nonzero(halo.kind != 0)[0]
+        src = halo.order[rows]                  # the sender's edge rows, whose values come in edge order
+        if len(rows) != len(values):
+            raise ValueError(f"mDBC halo: {len(values)} boundary values for {len(rows)} boundary rows")
+        k = np.searchsorted(np.sort(src), src)
+        halo.rho[rows] = values[k, 0]
+        halo.vel[rows] = values[k, 1:]
+        K.pressure_into(halo.rho, state.prm, halo.press)
 
     def check(self, state, lo, hi):
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)

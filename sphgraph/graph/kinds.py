@@ -27,6 +27,11 @@ class TaskKind(Enum):
     REBALANCE = ("rebalance", "Balancing", "compute", False)
     # scene features (sphgraph.features): placed only when the scene asks for them
     MDBC = ("mdbc", "MDBC", "compute", True)
+    # mDBC on several ranks: the edge's boundary rows' new densities and velocities, sent
+    # after the sender's mdbc, replace the stale ones its neighbours' halos hold
+    SEND_MDBC = ("send_mdbc", "SendMDBC", "comm", True)
+    RECV_MDBC_1 = ("recv_mdbc_1", "RecvMDBC", "comm", True)
+    RECV_MDBC_2 = ("recv_mdbc_2", "RecvMDBC", "comm", True)
     FORCES_IMAGES = ("forces_images", "FC", "compute", True)
     SHIFT_INTERIOR = ("shift_interior", "Shifting", "compute", True)
     SHIFT_IMAGES = ("shift_images", "Shifting", "compute", True)
@@ -64,10 +69,12 @@ NEEDS_NEIGHBOUR = {
     TaskKind.RECV_HALO_1: 1, TaskKind.FORCES_HALO_1: 1,
     TaskKind.RECV_HALO_2: 2, TaskKind.FORCES_HALO_2: 2,
     TaskKind.SHIFT_HALO_1: 1, TaskKind.SHIFT_HALO_2: 2,
+    TaskKind.SEND_MDBC: 0, TaskKind.RECV_MDBC_1: 1, TaskKind.RECV_MDBC_2: 2,
 }
 # The scene features' kinds: placed only when the run's feature set names them
 # (`sphgraph.features.Features.kinds`, an argument of Schedule.program).
-FEATURES = (TaskKind.MDBC, TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES,
+FEATURES = (TaskKind.MDBC, TaskKind.SEND_MDBC, TaskKind.RECV_MDBC_1, TaskKind.RECV_MDBC_2,
+            TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES,
             TaskKind.SHIFT_HALO_1, TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT,
             TaskKind.SHIFT_APPLY, TaskKind.MOTION, TaskKind.DAMPING, TaskKind.WRAP,
             TaskKind.EXCLUDE, TaskKind.PROBES)
@@ -87,7 +94,12 @@ LAST_STAGE_ONLY = (TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES, TaskKind.SHIF
 # ("end", ()) at the end of the step. Kinds are placed in this table's order, so a kind
 # may anchor on one placed before it.
 PLACEMENT = {
-    TaskKind.MDBC: ("before", ("send_edges", "forces_interior")),
+    # before the stage's first force task; on several ranks the schedule must have the halos
+    # arrive before it (the ghosts near a cut sum the neighbour's fluid: Features.check_schedule)
+    TaskKind.MDBC: ("before", ("forces_interior", "forces_images", "forces_halo_1", "forces_halo_2")),
+    TaskKind.SEND_MDBC: ("after", ("mdbc",)),
+    TaskKind.RECV_MDBC_1: ("before", ("forces_halo_1",)),
+    TaskKind.RECV_MDBC_2: ("before", ("forces_halo_2",)),
     TaskKind.FORCES_IMAGES: ("after", ("forces_interior",)),
     TaskKind.SHIFT_INTERIOR: ("after", ("forces_interior", "forces_images")),
     TaskKind.SHIFT_IMAGES: ("after", ("forces_images", "shift_interior")),

@@ -24,7 +24,9 @@ Data names (what tasks read, write or accumulate; `DATA` lists them):
   edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
 
 Scene features add their own tasks, only when the scene asks (sphgraph.features): `mdbc@s`
-(boundary density and velocity extrapolated before the stage's forces), `forces_images@s`
+(boundary density and velocity extrapolated before the stage's forces; on several ranks from
+the halos' fluid too, then `send_mdbc@s` / `recv_mdbc_1/2@s` put the new values of the edge's
+boundary rows on the neighbours' halos), `forces_images@s`
 (the rows against their periodic images), the shifting sums of each source set
 (`shift_interior`, `shift_images`, `shift_halo_1/2`, last stage), `shift_displacement`
 (before `integrate`, from the velocities the forces saw) and `shift_apply` (after it),
@@ -57,9 +59,9 @@ def tag_edges(stage: int, direction: int) -> int:
 
 
 PRE = (K.SEND_DISPLACED, K.RECV_DISPLACED, K.BUILD_CELLS)
-STAGE = (K.MDBC, K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.FORCES_INTERIOR, K.FORCES_IMAGES,
-         K.SHIFT_INTERIOR, K.SHIFT_IMAGES, K.FORCES_HALO_1, K.SHIFT_HALO_1, K.FORCES_HALO_2,
-         K.SHIFT_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.SHIFT_DISPLACEMENT, K.INTEGRATE,
+STAGE = (K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.MDBC, K.SEND_MDBC, K.FORCES_INTERIOR,
+         K.FORCES_IMAGES, K.SHIFT_INTERIOR, K.SHIFT_IMAGES, K.RECV_MDBC_1, K.FORCES_HALO_1, K.SHIFT_HALO_1,
+         K.RECV_MDBC_2, K.FORCES_HALO_2, K.SHIFT_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.SHIFT_DISPLACEMENT, K.INTEGRATE,
          K.SHIFT_APPLY, K.MOTION, K.DAMPING, K.WRAP)
 POST = (K.REBALANCE, K.EXCLUDE, K.PROBES)
 
@@ -71,6 +73,11 @@ def in_stage(kind: K, stage: int, stages: int) -> bool:
     if kind in LAST_STAGE_ONLY:
         return stage == stages
     return kind.per_stage or stage == 1
+
+
+def tag_mdbc(stage: int, direction: int) -> int:
+    """mDBC's boundary values of the edge sent towards `direction` in force stage `stage`."""
+    return 30 + 2 * stage + (0 if direction < 0 else 1)
 
 
 def neighbours(rank: int, nranks: int) -> list[int]:
@@ -130,6 +137,14 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
         # the neighbour below sent its edge "up" (+1), the one above "down" (-1)
         return Task(kind, s, writes=(f"halo_{side}",), lane=lane, fn=run_recv_halo,
                     recvs=(Message(o, tag_edges(s, -d)),), meta={"side": side})
+    if kind is K.SEND_MDBC:
+        return Task(kind, s, reads=("rows", "positions", "velocities", "densities"), lane=lane,
+                    fn=run_send_mdbc, sends=tuple(Message(o, tag_mdbc(s, d)) for d, o in nb), meta=dirs)
+    if kind in (K.RECV_MDBC_1, K.RECV_MDBC_2):
+        side = 1 if kind is K.RECV_MDBC_1 else 2
+        d = -1 if side == 1 else 1
+        return Task(kind, s, reads=(f"halo_{side}",), writes=(f"halo_{side}",), lane=lane, fn=run_recv_mdbc,
+                    recvs=(Message(dict(nb)[d], tag_mdbc(s, -d)),), meta={"side": side})
     if kind is K.FORCES_INTERIOR:
         return Task(kind, s, reads=("particles", "cells"), accumulates=(f"forces@{s}",), lane=lane,
                     fn=run_forces, meta={"part": "interior"})
@@ -220,6 +235,19 @@ def run_recv_halo(ctx, task):
     ctx.state.halos[task.meta["side"]] = halo
 
 
+def run_send_mdbc(ctx, task):
+    for m, d in zip(task.sends, task.meta["dirs"]):
+        values = ctx.compute.mdbc_edge(ctx.state, ctx.domain, d)
+        ctx.state.bytes_sent += payload_nbytes(values)
+        ctx.comm.isend(ctx.rank + m.peer, m.tag, values)
+
+
+def run_recv_mdbc(ctx, task):
+    m = task.recvs[0]
+    values = ctx.comm.recv(ctx.rank + m.peer, m.tag)
+    ctx.compute.mdbc_halo(ctx.state, ctx.state.halos[task.meta["side"]], values)
+
+
 def run_forces(ctx, task):
     ctx.compute.forces(ctx.state, task.meta["part"])
 
@@ -293,7 +321,8 @@ _FIELDS = ("rows", "positions", "velocities", "densities")
 # kind -> (reads, writes, accumulates, body) of the feature tasks; "@s" is the task's stage
 FEATURE_ACCESS = {
     # the boundary rows' densities and velocities (and their pressures, part of cells) from the fluid
-    K.MDBC: (_FIELDS + ("cells",), ("densities", "velocities", "cells"), (), run_mdbc),
+    # (on several ranks the ghosts near a cut also sum the halos' fluid rows)
+    K.MDBC: (_FIELDS + ("cells", "halo_1", "halo_2"), ("densities", "velocities", "cells"), (), run_mdbc),
     # images of the own rows made and binned, then summed like a halo into the stage's forces
     K.FORCES_IMAGES: (_FIELDS + ("cells",), ("images",), ("forces@s",), run_forces_images),
     K.SHIFT_INTERIOR: (("rows", "positions", "densities", "cells"), (), ("shift_sums",), run_shift_part),
