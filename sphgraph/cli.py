@@ -152,6 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dp", help="comma-separated spacings (default: the case's study list)")
     for k in ("integrator", "kernel", "diffusion", "precision", "backend"):
         p.add_argument(f"--{k}", help=f"comma-separated {k} values")
+    for k in STUDY_PHYSICS:     # the formulations beyond DualSPHysics', swept beside it
+        p.add_argument(f"--{k.replace('_', '-')}", dest=k, help=f"comma-separated [physics] {k} values")
+    p.add_argument("--base", help="baseline physics fields the variants depart from, KEY=VALUE[,KEY=VALUE] "
+                                  "(e.g. integrator=symplectic)")
     p.add_argument("--out", help="directory (default out/study/<case>)")
     p.add_argument("--target-error", type=float, help="name the cheapest configuration with error <= E")
     p.add_argument("--from-csv", help="skip the runs: read an earlier study CSV")
@@ -450,12 +454,28 @@ def cmd_validate(args) -> int:
     return 0 if res.ok else 1
 
 
+# [physics] fields `sphgraph study` sweeps besides its own axes (sphgraph.study: extra axes)
+STUDY_PHYSICS = ("riemann", "diffusion_time", "boundary", "shifting", "visc_alpha")
+
 def cmd_study(args) -> int:
     from .study import run_study
-    axes = {k: getattr(args, k).split(",") for k in ("integrator", "kernel", "diffusion", "precision", "backend")
-            if getattr(args, k)}
+    axes = {k: getattr(args, k).split(",")
+            for k in ("integrator", "kernel", "diffusion", "precision", "backend", *STUDY_PHYSICS) if getattr(args, k)}
+    if "visc_alpha" in axes:
+        axes["visc_alpha"] = _floats(args.visc_alpha, "--visc-alpha")
+    base = {}
+    for item in (args.base.split(",") if args.base else []):
+        k, eq, v = item.partition("=")
+        if not eq or not k or not v:
+            raise InputError(f"--base: expected KEY=VALUE[,KEY=VALUE...], got {args.base!r}")
+        k = k.strip()
+        from .config import PhysicsConfig
+        if k not in PhysicsConfig.__dataclass_fields__:
+            raise InputError(f"--base: {k!r} is not a [physics] field: expected one of "
+                             f"{', '.join(sorted(PhysicsConfig.__dataclass_fields__))}")
+        base[k] = float(v) if k == "visc_alpha" else v.strip()
     out = run_study(args.case, dps=_floats(args.dp, "--dp") if args.dp else None, axes=axes, out=args.out,
-                    target_error=args.target_error, from_csv=args.from_csv)
+                    target_error=args.target_error, from_csv=args.from_csv, base=base)
     print(out["summary"])
     return 0 if args.target_error is None or out.get("best") is not None else 1
 

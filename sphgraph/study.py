@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import NumericalError
+from .errors import InputError, NumericalError
 
 AXES = ("integrator", "kernel", "diffusion", "precision", "backend")
 DEFAULT_AXES = {"integrator": ["verlet", "symplectic"], "kernel": ["wendland", "cubic"],
@@ -33,9 +33,12 @@ DEFAULT_AXES = {"integrator": ["verlet", "symplectic"], "kernel": ["wendland", "
 FIELDS = ["case", "dp", *AXES, "error", "wall_s", "steps", "particles", "status", "pareto"]
 
 
-def baseline(case, extra_axes=()) -> dict:
+def baseline(case, extra_axes=(), base=None) -> dict:
+    """The configuration every variant departs from: the case's own, with `base` (e.g.
+    {"integrator": "symplectic"}) on top."""
     from .config import PhysicsConfig
-    ph = case.scene.get("physics", {})
+    ph = dict(case.scene.get("physics", {}), **(base or {}))
+    extra_axes = list(extra_axes) + [k for k in (base or {}) if k not in AXES and k not in extra_axes]
     base = {"integrator": ph.get("integrator", "verlet"), "kernel": ph.get("kernel", "wendland"),
             "diffusion": ph.get("diffusion", "fourtakas"), "precision": "float64", "backend": "numba-cpu"}
     for k in extra_axes:     # any other physics field swept (e.g. visc_alpha)
@@ -43,10 +46,10 @@ def baseline(case, extra_axes=()) -> dict:
     return base
 
 
-def configurations(case, dps, axes) -> list[dict]:
+def configurations(case, dps, axes, base=None) -> list[dict]:
     """One factor at a time around the baseline, at every dp (duplicates removed)."""
-    extra = [k for k in axes if k not in AXES]
-    base = baseline(case, extra)
+    base = baseline(case, [k for k in axes if k not in AXES], base)
+    extra = [k for k in base if k not in AXES]
     out, seen = [], set()
     for dp in dps:
         variants = [dict(base)]
@@ -76,6 +79,8 @@ def run_one(case_name: str, cfg: dict, error_key: str) -> dict:
     except NumericalError as e:
         row.update(error=math.inf, wall_s=time.perf_counter() - t0, steps=e.step or 0, particles=0,
                    status=f"failed: {e.cause}")
+    except InputError as e:   # a combination the scene refuses (e.g. a Riemann term under Verlet)
+        row.update(error=math.inf, wall_s=0.0, steps=0, particles=0, status=f"refused: {e}")
     return row
 
 
@@ -103,8 +108,9 @@ def read_csv(path) -> list[dict]:
 
 
 def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, from_csv=None,
-              log=print, configs=None) -> dict:
-    """Run (or read, `from_csv`) the sweep; `configs` replaces the one-at-a-time list."""
+              log=print, configs=None, base=None) -> dict:
+    """Run (or read, `from_csv`) the sweep; `configs` replaces the one-at-a-time list; `base`:
+    physics fields of the baseline the variants depart from."""
     from .plots import pareto_front, plot_study
     from .validation.cases import load_case
     case = load_case(case_name)
@@ -119,10 +125,13 @@ def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, 
         if axes is None or not axes:
             axes = {k: v for k, v in DEFAULT_AXES.items() if k in st.get("axes", AXES)}
         rows = []
-        for cfg in configs or configurations(case, dps, axes):
+        for cfg in configs or configurations(case, dps, axes, base):
             r = run_one(case.name, cfg, error_key)
             log(describe(r) + ("" if r["status"] == "ok" else f" [{r['status']}]"))
             rows.append(r)
+        if rows and all(r["status"].startswith("refused") for r in rows):
+            raise InputError(f"study {case.name}: every configuration was refused; the first: "
+                             f"{rows[0]['status'][len('refused: '):]}")
     front = set(pareto_front([r["wall_s"] for r in rows], [r["error"] for r in rows]).tolist())
     for i, r in enumerate(rows):
         r["pareto"] = int(i in front)

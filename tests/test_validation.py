@@ -148,6 +148,30 @@ def test_study_csv_png_pareto_and_target(tmp_path, capsys):
                  "--target-error", "1e-9"]) == 1
 
 
+def test_study_sweeps_the_new_formulations_beside_dualsphysics(tmp_path, capsys):
+    """`--riemann` / `--boundary` are axes like the others: each value a run at the baseline
+    of the rest, a column of the CSV, and `--target-error` picks among them."""
+    args = ["study", "poiseuille", "--dp", "5e-5", "--riemann", "none,zhang2017", "--boundary", "mdbc-noslip"]
+    rc = main(args + ["--base", "integrator=symplectic", "--out", str(tmp_path), "--target-error", "1.0"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    rows = list(csv.DictReader(open(tmp_path / "study.csv")))
+    got = {(r["integrator"], r["riemann"], r["boundary"]): r for r in rows}
+    assert set(got) == {("symplectic", "none", "dbc"), ("symplectic", "zhang2017", "dbc"),
+                        ("symplectic", "none", "mdbc-noslip")}
+    assert all(r["status"] == "ok" for r in rows)
+    assert len({float(r["error"]) for r in rows}) == 3          # each formulation gave its own error
+    assert "cheapest: dp=5e-05" in out
+    # around the case's Verlet baseline the Riemann term is refused by the scene: a row, not a crash
+    rc = main(args + ["--out", str(tmp_path / "v")])
+    rows = list(csv.DictReader(open(tmp_path / "v" / "study.csv")))
+    bad = [r for r in rows if r["riemann"] == "zhang2017"]
+    assert rc == 0 and len(bad) == 1 and bad[0]["status"].startswith("refused: ") and "symplectic" in bad[0]["status"]
+    capsys.readouterr()
+    assert main(args + ["--base", "integrater=symplectic", "--out", str(tmp_path / "x")]) == 2
+    assert "--base: 'integrater' is not a [physics] field" in capsys.readouterr().err
+
+
 def test_run_writes_probes_and_forces_groups(tmp_path):
     """A scene with [probes] and [forces]: `sphgraph.run` samples them at their interval and
     writes /probes and /forces; a bad table is refused when the scene is read, before anything
