@@ -23,21 +23,23 @@ from sphgraph.validation.cases import load_case
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--dps", default="0.05,0.04,0.03,0.02")
+ap.add_argument("--case", default="dambreak", help="dambreak, or dambreak_walls3 (3 wall layers, as mDBC asks)")
 ap.add_argument("--out", default="out/study/formulations")
 ap.add_argument("--target-error", type=float, default=0.08)
 args = ap.parse_args()
 
-case = load_case("dambreak")
+case = load_case(args.case)
 extra = ("riemann", "diffusion_time", "boundary", "visc_alpha")
 base = baseline(case, extra)
 variants = [{}, {"diffusion_time": "dufort-frankel"}, {"boundary": "mdbc-noslip"},
             {"integrator": "symplectic"}, {"integrator": "symplectic", "riemann": "zhang2017"},
             {"integrator": "symplectic", "boundary": "mdbc-noslip"}, {"visc_alpha": 0.1}]
 configs = [dict(base, dp=float(dp), **v) for dp in args.dps.split(",") for v in variants]
-res = run_study("dambreak", out=args.out, configs=configs, target_error=args.target_error,
+res = run_study(args.case, out=args.out, configs=configs, target_error=args.target_error,
                 log=lambda s: print(s, flush=True))
 print(res["summary"])
-docs = Path(__file__).resolve().parents[1] / "docs" / "study_formulations.png"
+docs = Path(__file__).resolve().parents[1] / "docs" / ("study_formulations.png" if args.case == "dambreak"
+                                                       else f"study_formulations_{args.case}.png")
 shutil.copy(res["png"], docs)
 shutil.copy(res["csv"], docs.with_suffix(".csv"))
 print(f"copied to {docs} (+ .csv)")
