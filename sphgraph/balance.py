@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .domain import MIN_SLAB_H
 from .errors import InputError
 from .ranges import expected
 
@@ -257,7 +258,7 @@ class Balancer:
         cur = loads(edges, hist, dom.cuts, reach)
         total = cur.sum()
         targets = target_loads(self.cfg, total, speeds, caps)
-        cuts = solve_cuts(edges, hist, dom.cuts, targets, reach, 6.0 * self.h)
+        cuts = solve_cuts(edges, hist, dom.cuts, targets, reach, MIN_SLAB_H * self.h)
         new = loads(edges, hist, cuts, reach)
         if self.cfg.policy == "memory":
             targets, cuts, new = self._within_caps(edges, hist, dom.cuts, reach, total, speeds, caps, cuts, new)
@@ -303,7 +304,7 @@ class Balancer:
             if eff.sum() < total:
                 break
             targets = target_loads(self.cfg, total, speeds, eff)
-            cuts = solve_cuts(edges, hist, old_cuts, targets, reach, 6.0 * self.h)
+            cuts = solve_cuts(edges, hist, old_cuts, targets, reach, MIN_SLAB_H * self.h)
             new = loads(edges, hist, cuts, reach)
         return targets, cuts, new
 

@@ -463,13 +463,13 @@ def cmd_study(args) -> int:
             for k in ("integrator", "kernel", "diffusion", "precision", "backend", *STUDY_PHYSICS) if getattr(args, k)}
     if "visc_alpha" in axes:
         axes["visc_alpha"] = _floats(args.visc_alpha, "--visc-alpha")
+    from .config import PhysicsConfig
     base = {}
     for item in (args.base.split(",") if args.base else []):
         k, eq, v = item.partition("=")
         if not eq or not k or not v:
             raise InputError(f"--base: expected KEY=VALUE[,KEY=VALUE...], got {args.base!r}")
         k = k.strip()
-        from .config import PhysicsConfig
         if k not in PhysicsConfig.__dataclass_fields__:
             raise InputError(f"--base: {k!r} is not a [physics] field: expected one of "
                              f"{', '.join(sorted(PhysicsConfig.__dataclass_fields__))}")

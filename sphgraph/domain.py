@@ -16,6 +16,12 @@ from .state import Halo
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
+# in units of the smoothing length h: edge rows are those within REACH_H of a cut (the 2h
+# support and room for a step's motion), and no slab is narrower than MIN_SLAB_H, so that a
+# halo comes from the next slab alone
+REACH_H = 2.2
+MIN_SLAB_H = 6.0
+
 def choose_axis(axis: str, particles: Particles, gravity) -> int:
     """`auto`: the longest fluid extent perpendicular to gravity (DESIGN.md §5)."""
     if axis != "auto":
@@ -32,7 +38,7 @@ def equal_cuts(particles: Particles, axis: int, nranks: int, h: float, weights=N
     """Cuts giving each rank an equal share of fluid particles, each slab >= 6h wide."""
     x = np.sort(particles.pos[particles.kind == FLUID, axis])
     lo, hi = float(particles.pos[:, axis].min()), float(particles.pos[:, axis].max())
-    min_width = 6.0 * h
+    min_width = MIN_SLAB_H * h
     if (hi - lo) < nranks * min_width:
         raise InputError(f"scene: decomposition: {nranks} ranks need a domain at least "
                          f"{nranks * min_width:.4g} m wide along axis {'xyz'[axis]} (6h = {min_width:.4g} m "

@@ -266,7 +266,8 @@ def decomposition_shape(scene, ranks: int, max_build: int = 1_000_000, axis=None
     ax = choose_axis(axis or scene.decomposition_axis, p, consts.gravity)
     cuts = equal_cuts(p, ax, ranks, consts.h, weights)
     x = p.pos[:, ax]
-    reach = 2.2 * consts.h
+    from .domain import REACH_H
+    reach = REACH_H * consts.h
     owner = np.searchsorted(cuts[1:-1], x, side="right")
     rows, lo_edge, hi_edge = [], [], []
     for r in range(ranks):

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .domain import Slabs
+from .domain import REACH_H, Slabs
 from .errors import InputError
 from .state import Halo
 
@@ -45,7 +45,7 @@ class Periodic:
     @classmethod
     def from_scene(cls, scene, sim) -> "Periodic":
         axes = ["xyz".index(a) for a in scene.periodic]
-        return cls(axes, scene.domain_min, scene.domain_max, 2.2 * sim.consts.h, sim.axis, sim.nranks)
+        return cls(axes, scene.domain_min, scene.domain_max, REACH_H * sim.consts.h, sim.axis, sim.nranks)
 
     def attach(self, sim) -> None:
         for a in self.axes:

@@ -62,8 +62,9 @@ def check_ranks_fit(scene, ranks: int) -> None:
         return
     h = scene.physics.coefh * math.sqrt(scene.dim) * scene.dp
     widest = float((scene.domain_max - scene.domain_min).max())
-    most = max(1, int(widest / (6.0 * h)))
+    from .domain import MIN_SLAB_H
+    most = max(1, int(widest / (MIN_SLAB_H * h)))
     if ranks > most:
         raise InputError(f"{scene.source}: decomposition: {ranks} ranks need a domain at least "
-                         f"{ranks * 6.0 * h:.4g} m wide (6h = {6.0 * h:.4g} m per subdomain), the domain's "
+                         f"{ranks * MIN_SLAB_H * h:.4g} m wide (6h = {MIN_SLAB_H * h:.4g} m per subdomain), the domain's "
                          f"widest side is {widest:.4g} m: expected at most {most} ranks")

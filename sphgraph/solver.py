@@ -15,7 +15,7 @@ import numpy as np
 from . import __version__
 from .balance import BalanceConfig, Balancer
 from .cells import axis_order
-from .domain import Slabs, choose_axis, equal_cuts, split
+from .domain import MIN_SLAB_H, REACH_H, Slabs, choose_axis, equal_cuts, split
 from .errors import CAUSES, CommError, DiskFullError, InputError, NumericalError, SphgraphError
 from .particles import in_id_order
 from .registry import get
@@ -150,14 +150,16 @@ class Simulation:
             axis, cuts, slabs = None, None, [blocks[0] if blocks else particles]
             self.axis = None
         self.contexts = []
-        reach = 2.2 * consts.h
+        reach = REACH_H * consts.h
         from .features import MDBC_KINDS, Mdbc
         if axis is not None and MDBC_KINDS[0] in self.features.kinds:   # the ghosts near a cut: see Mdbc
-            reach += Mdbc.ghost_reach(scene, particles, axis)
-            if reach > 6.0 * consts.h:   # a halo must come from the next slab alone (slabs are >= 6h)
-                raise InputError(f"{scene.source}: boundary: mDBC's ghost nodes lie {reach - 2.2 * consts.h:.4g} m "
-                                 f"from their rows along axis {'xyz'[axis]}: expected at most "
-                                 f"{3.8 * consts.h:.4g} m (3.8h) on several ranks (fewer boundary layers)")
+            ghost = Mdbc.ghost_reach(scene, particles, axis)
+            most = (MIN_SLAB_H - REACH_H) * consts.h     # a halo must come from the next slab alone
+            if ghost > most:
+                raise InputError(f"{scene.source}: boundary: mDBC's ghost nodes lie {ghost:.4g} m from their rows "
+                                 f"along axis {'xyz'[axis]}: expected at most {most:.4g} m "
+                                 f"({MIN_SLAB_H - REACH_H:g}h) on several ranks (fewer boundary layers)")
+            reach += ghost
         ref = particles.pos.min(axis=0) if self.nranks > 1 and particles.n else None
         for r in self.comm.local_ranks:
             st = RankState(particles=slabs[r], consts=consts, dtype=self.dtype, rank=r, nranks=self.nranks,
