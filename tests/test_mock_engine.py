@@ -248,6 +248,25 @@ def test_bench_predicts_from_a_device_window_after_its_timed_steps():
         assert r["predicted_wall_s"] >= steps * 2e-3 * 6
 
 
+def test_the_device_window_starts_with_the_ranks_clocks_together():
+    """The cost model prices the ranks' rows (here 1 s a row a step, so ranks with different
+    row counts drift apart by seconds); the window's prediction is of the device's times
+    alone, as if the whole run had been timed on the device, with no wait inherited from
+    the model's drift."""
+    from sphgraph.bench import bench
+    costs = {"integrate": [0.0, 1.0, 0.0]}
+    r = bench(small(), steps=6, warmup=2, backend=_ClockedCPU, comm="mock", ranks=2,
+              comm_options={"costs": costs})
+    dev = Simulation(small(), backend=_ClockedCPU, comm="mock", ranks=2,
+                     comm_options={"costs": costs, "timing": "device"})
+    for _ in range(8):
+        dev.step()
+    cols = dev.scheduler.times.columns()
+    late = cols["step"] > cols["step"].min() + 1
+    per_step = (cols["end"][late].max() - cols["start"][late].min()) / 6
+    assert r["predicted_wall_s"] == pytest.approx(6 * per_step, rel=0.05)
+
+
 def test_auto_timing_without_a_device_clock_is_the_model():
     _, auto = timing_of(steps=3)
     _, model = timing_of(steps=3, timing="model")

@@ -266,6 +266,18 @@ class Engine:
             self.duplicated += 1               # the network delivers the same message twice
             box.append(msg)
 
+    def align(self) -> None:
+        """Every rank's clock to the latest clock or queued arrival: a virtual barrier where the
+        clock changes its source. Durations of one source (the cost model's CPU-fitted seconds)
+        leave the ranks' clocks apart by what that source priced differently between them; the
+        first waits under the next source (device task times) would carry that gap as if it
+        were communication."""
+        t = max(self.clock)
+        for box in self.mail.values():
+            for m in box:
+                t = max(t, m.arrival)
+        self.clock = [t] * self.n
+
     def accept(self, rank, source, tag, msg, task=None):
         """The receiver's check of a message's sequence number (CommError on a fault)."""
         self.seqs[rank].accept(source, tag, msg.seq, task.name if task is not None else None, self.step)
@@ -500,6 +512,7 @@ class MockComm(CommBackend):
         if device != self._clock_on:
             compute.start_task_clock() if device else compute.stop_task_clock()
             self._clock_on = device
+            eng.align()
         self.clock = "device task times" if device else "task bodies' wall time" if wall else "cost model"
         eng.step = _step_of(jobs)
 
