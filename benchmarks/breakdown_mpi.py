@@ -26,11 +26,13 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 TIMERS = ("SendEdge", "RecvHalo", "SendDisplaced", "RecvDisplaced", "SynchroDt", "Balancing", "FC", "NL", "PU")
 
 
-def run(scene, dp, ranks, steps, out):
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
+def run(scene, dp, ranks, steps, out, backend="numba-cpu", schedule="production", precision=None):
+    # one numba thread a rank on the CPU; on a GPU every rank's kernels run on the device
+    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1") if backend == "numba-cpu" else dict(os.environ)
     mpiexec = os.path.join(sys.prefix, "bin", "mpiexec")
     cmd = [mpiexec, "-n", str(ranks), sys.executable, "-m", "sphgraph", "run", scene, "--dp", str(dp),
-           "--comm", "mpi", "--max-steps", str(steps), "--out", out, "--overwrite"]
+           "--comm", "mpi", "--max-steps", str(steps), "--out", out, "--overwrite", "--backend", backend,
+           "--schedule", schedule] + (["--precision", precision] if precision else [])
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800)
     if p.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({p.returncode}):\n{p.stderr[-2000:]}")
@@ -59,19 +61,24 @@ def main(argv=None):
     ap.add_argument("--dp", type=float, default=0.01)
     ap.add_argument("--ranks", type=int, nargs="+", default=[2, 3])
     ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--png", default=None)
+    ap.add_argument("--png", default=None, help="the breakdown of the first run (of each schedule: NAME_SCHEDULE.png)")
+    ap.add_argument("--backend", default="numba-cpu")
+    ap.add_argument("--precision", default=None)
+    ap.add_argument("--schedules", nargs="+", default=["production"])
     a = ap.parse_args(argv)
     res = []
     with tempfile.TemporaryDirectory() as tmp:
-        for i, n in enumerate(a.ranks):
-            out = os.path.join(tmp, f"r{n}")
-            cmd, summary = run(a.scene, a.dp, n, a.steps, out)
-            nsteps, table, bal = breakdown(out)
-            res.append({"ranks": n, "command": cmd, "summary": summary, "steps": nsteps,
-                        "ms_per_step": table, "balance": bal})
-            if a.png and i == 0:
-                from sphgraph.plots import plot_breakdown
-                plot_breakdown(out, path=a.png)
+        for sched in a.schedules:
+            for i, n in enumerate(a.ranks):
+                out = os.path.join(tmp, f"r{n}_{sched}")
+                cmd, summary = run(a.scene, a.dp, n, a.steps, out, a.backend, sched, a.precision)
+                nsteps, table, bal = breakdown(out)
+                res.append({"ranks": n, "schedule": sched, "backend": a.backend, "command": cmd,
+                            "summary": summary, "steps": nsteps, "ms_per_step": table, "balance": bal})
+                if a.png and i == 0:
+                    from sphgraph.plots import plot_breakdown
+                    png = a.png if len(a.schedules) == 1 else a.png.replace(".png", f"_{sched}.png")
+                    plot_breakdown(out, path=png)
     for r in res:
         print(f"\n{r['command']}  ({r['summary']})\n")
         print("| rank | " + " | ".join(TIMERS) + " | step |")

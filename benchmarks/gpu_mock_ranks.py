@@ -52,13 +52,13 @@ def _wrap_programs(sim, host):
             progs[r] = [replace(t, fn=wrap(t.fn, t.label)) for t in prog]
 
 
-def one_run(scene, dp, comm, ranks, transport, steps, warmup, precision, schedule):
+def one_run(scene, dp, comm, ranks, transport, steps, warmup, precision, schedule, order="auto"):
     from numba import cuda
 
     from sphgraph.scene import Scene
     from sphgraph.solver import Simulation
     sc = Scene.from_toml(scene).with_overrides(dp=dp)
-    opts = {"halo_transport": transport} if comm == "mock" else None
+    opts = {"halo_transport": transport, "order": order} if comm == "mock" else None
     sim = Simulation(sc, backend="numba-cuda", comm=comm, ranks=ranks, precision=precision, schedule=schedule,
                      comm_options=opts)
     for _ in range(warmup):
@@ -80,6 +80,7 @@ def one_run(scene, dp, comm, ranks, transport, steps, warmup, precision, schedul
     halo_bytes = sum(int(c.state.bytes_sent) for c in sim.contexts)
     rank_steps = steps * sim.nranks
     return {"dp": dp, "comm": comm, "ranks": sim.nranks, "transport": transport if comm == "mock" else None,
+            "order": sim.comm.order if comm == "mock" else None,
             "particles": sim.n_total, "steps": steps, "wall_s": wall, "steps_per_s": steps / wall,
             "host_s_per_rank_step": {k: v / rank_steps for k, v in sorted(host.items())},
             "host_s_per_step": sum(host.values()) / steps,
@@ -116,6 +117,7 @@ def main(argv=None):
     ap.add_argument("--ranks", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--transport", nargs="+", default=["staged"])
     ap.add_argument("--schedule", default="production")
+    ap.add_argument("--orders", nargs="+", default=["auto"], help="the mock engine's order(s): auto, clock, eager")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--rounds", type=int, default=3)
@@ -127,23 +129,28 @@ def main(argv=None):
     a = ap.parse_args(argv)
     results = []
     for dp in a.dp:
-        configs = [("single", 1, "staged")] + [("mock", r, t) for r in a.ranks for t in a.transport]
+        configs = [("single", 1, "staged", None)] + [("mock", r, t, o) for r in a.ranks for t in a.transport
+                                                     for o in a.orders]
         for rnd in range(a.rounds):
-            for comm, r, t in configs:     # alternated: every config once per round
+            for comm, r, t, o in configs:     # alternated: every config once per round
                 try:
-                    res = one_run(a.scene, dp, comm, r, t, a.steps, a.warmup, a.precision, a.schedule)
+                    res = one_run(a.scene, dp, comm, r, t, a.steps, a.warmup, a.precision, a.schedule, o)
                 except Exception as e:   # noqa: BLE001 - reported, the other runs go on
-                    res = {"dp": dp, "comm": comm, "ranks": r, "transport": t, "error": f"{type(e).__name__}: {e}"}
+                    res = {"dp": dp, "comm": comm, "ranks": r, "transport": t, "order": o,
+                           "error": f"{type(e).__name__}: {e}"}
                 res["round"] = rnd
+                res["asked_order"] = o
                 results.append(res)
                 print(json.dumps(res), flush=True)
         single = [x["steps_per_s"] for x in results if x.get("dp") == dp and x["comm"] == "single" and "error" not in x]
-        for comm, r, t in configs[1:]:
+        for comm, r, t, o in configs[1:]:
             got = [x["steps_per_s"] for x in results if x.get("dp") == dp and x["comm"] == comm and x["ranks"] == r
-                   and x.get("transport") == t and "error" not in x]
+                   and x.get("transport") == t and x.get("round") is not None and x.get("asked_order") == o
+                   and "error" not in x]
             if single and got:
                 ratio = statistics.median(got) / statistics.median(single)
-                summary = {"dp": dp, "ranks": r, "transport": t, "median_single": statistics.median(single),
+                summary = {"dp": dp, "ranks": r, "transport": t, "order": o, "rounds": len(got),
+                           "median_single": statistics.median(single),
                            "median_mock": statistics.median(got), "ratio": ratio}
                 results.append({"summary": summary})
                 print(json.dumps({"summary": summary}), flush=True)

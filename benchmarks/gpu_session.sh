@@ -174,6 +174,33 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --backend numba-cuda --precision float32
               stage fine_wall2d_df 400 python3 benchmarks/fine_runs.py wall2d --backend numba-cuda --precision float32 \
                 --no-exclude ;;
+    # mock ranks against single at 4.4 and 13.3 M, 3 alternated rounds, both engine orders, the
+    # float64 match against one rank at 2 and 4 ranks; the GPU path's multi-rank test (1.3 M, 4 and 5 ranks)
+    mock-21)  stage mock_21 420 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 0.004 --ranks 2 4 --steps 52 \
+                --warmup 3 --rounds 3 --transport auto --orders eager clock --match --json "$OUT/mock_21.json"
+              stage multirank_gpu 200 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_cuda_multirank.py ;;
+    # two and four processes on the GPU under CUDA MPS at 4.4 and 13.3 M, both schedules; the float64
+    # mpiexec -n 2 / -n 4 test under MPS; the paper's timers of 40-step MPS runs (sphgraph plot breakdown)
+    mps-21)   export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
+              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
+              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+              stage mps2_21 300 python3 benchmarks/gpu_multi.py --dp 0.006 0.004 --ranks 2 --steps 30 --warmup 3 \
+                --schedules production bulk-synchronous --transports ipc --json "$OUT/mps2_21.json"
+              stage mps4_21 120 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
+                --schedules production --transports ipc --json "$OUT/mps4_21.json"
+              stage mps_match 200 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_cuda_halo.py \
+                -k mpiexec_ipc
+              stage mps_breakdown 200 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
+                --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
+                --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
+              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+    # CPU under real MPI at 1.0 M on the 16 cores, 3 alternated rounds: 1 x 16 threads, -n 2 x 8 and
+    # -n 4 x 4 with each rank bound to its own cores (Hydra's -bind-to core:K), and -n 4 unbound
+    cpu-mpi-21) stage cpu_mpi_21 400 bash -c "B='python3 -m sphgraph bench examples/yeh_petroff.toml --dp 0.0045 \
+                --steps 8 --warmup 2 --json'; for r in 1 2 3; do NUMBA_NUM_THREADS=16 \$B; \
+                mpiexec -n 2 -bind-to core:8 env NUMBA_NUM_THREADS=8 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
+                mpiexec -n 4 -bind-to core:4 env NUMBA_NUM_THREADS=4 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
+                mpiexec -n 4 env NUMBA_NUM_THREADS=4 \$B --comm mpi; done | tee $OUT/cpu_mpi_21.jsonl" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

@@ -267,6 +267,32 @@ def test_the_device_window_starts_with_the_ranks_clocks_together():
     assert r["predicted_wall_s"] == pytest.approx(6 * per_step, rel=0.05)
 
 
+def test_eager_order_gives_the_clock_orders_times_and_rows():
+    """Which runnable rank the engine runs next changes the order in which one process
+    issues the ranks' tasks, never a virtual time or a row: "eager" (a rank runs up to its
+    next wait) against "clock" (smallest virtual clock first), 3 ranks, 12 steps with a
+    rebalance, on the cost model's clock."""
+    runs = {}
+    for order in ("clock", "eager"):
+        sim = Simulation(small(), comm="mock", ranks=3, comm_options={"order": order})
+        for _ in range(12):
+            sim.step()
+        runs[order] = (sim.scheduler.times.columns(), sim.frame_arrays())
+        assert sim.comm.order == order
+    (tc, ac), (te, ae) = runs["clock"], runs["eager"]
+    # /timing's rows come in the order the tasks ran: the two orders did differ
+    assert list(zip(tc["rank"], tc["task"])) != list(zip(te["rank"], te["task"]))
+    key = lambda c: np.lexsort((c["start"], c["rank"], c["step"]))   # noqa: E731
+    for k in ("start", "end"):
+        assert np.array_equal(tc[k][key(tc)], te[k][key(te)]), k
+    for k in ac:
+        assert np.array_equal(ac[k], ae[k]), k
+    assert Simulation(small(), comm="mock", ranks=2).comm.order == "eager"
+    assert Simulation(small(), comm="mock", ranks=2, comm_options={"delay": 1e-6}).comm.order == "clock"
+    with pytest.raises(InputError, match="order"):
+        MockComm(ranks=2, order="fifo")
+
+
 def test_auto_timing_without_a_device_clock_is_the_model():
     _, auto = timing_of(steps=3)
     _, model = timing_of(steps=3, timing="model")

@@ -1,9 +1,18 @@
 """Mock MPI: N ranks in one process, run by a deterministic discrete-event engine.
 
-Every rank has a virtual clock. The engine repeatedly picks the runnable rank
-with the smallest clock (ties: lowest rank) and runs its next task. A task is
-runnable unless it is a receive whose message has not been *sent* yet, or a
-collective that not every rank has reached. Then:
+Every rank has a virtual clock. The engine runs one runnable rank's next task at a
+time. A task is runnable unless it is a receive whose message has not been *sent* yet,
+or a collective that not every rank has reached. Which runnable rank goes next is the
+`order`: "clock", the one with the smallest clock (ties: lowest rank); "eager", the
+rank that ran last while it can, then the smallest clock. The virtual times and every
+rank's results do not depend on the order (a task starts at its own rank's clock and
+its messages' arrivals); the wall clock does: on one GPU, "eager" issues a rank's
+tasks up to its next wait in one go, so its kernels (the interior forces above all)
+reach the device while the host issues the next rank's, where "clock" interleaves the
+ranks task by task and the device idles between the small tasks of a step's end. The
+random draws of `delay`, `reorder`, `duplicate` and `loss` follow the order in which
+messages are posted, so "auto" (the default) is "clock" with any of those set and
+"eager" otherwise. Then:
 
   send        the payload is frozen (deep-copied) and posted with
               arrival = post time + latency + bytes / bandwidth (+ random delay);
@@ -34,6 +43,7 @@ Options (constructor keywords, `comm_options` of `sphgraph.run` / `Simulation`):
   seed        random seed of delay / reorder / duplicate / loss
   watchdog    virtual seconds a rank may wait in one receive or collective before the run
               stops with CommError naming the rank, task, step and peer (0 = off, the default)
+  order       "auto" (default), "clock" or "eager": which runnable rank runs next (above)
   timing      "auto" (default), "model", "wall" or "device" (see Durations)
   mode        "execute" (real kernels) or "predict" (modelled costs, no task bodies)
   costs       cost model: None (shipped fit), a dict {kind: [a, b, c]}, a TOML path
@@ -218,8 +228,9 @@ class Engine:
     """
 
     def __init__(self, n, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH, delay=0.0,
-                 reorder=False, seed=0, duplicate=0.0, loss=0.0, watchdog=0.0):
+                 reorder=False, seed=0, duplicate=0.0, loss=0.0, watchdog=0.0, order="clock"):
         self.n = n
+        self.eager = order == "eager"
         self.latency = float(latency)
         self.bandwidth = float(bandwidth)
         self.delay = float(delay)
@@ -343,6 +354,7 @@ class Engine:
         if ranks != list(range(self.n)):
             raise InternalError(f"mock engine: expected programs of ranks 0..{self.n - 1}, got {ranks}")
         pc = {r: 0 for r in ranks}
+        last = None
         while True:
             pending = [r for r in ranks if pc[r] < len(programs[r])]
             if not pending:
@@ -363,7 +375,10 @@ class Engine:
                 if lost:
                     raise CommError(lost)
                 raise DeadlockError(self._deadlock_report(ranks, pending, heads))
-            r = min(runnable, key=lambda q: (self.clock[q], q))
+            if self.eager and last in runnable:
+                r = last
+            else:
+                r = last = min(runnable, key=lambda q: (self.clock[q], q))
             run_task(r, heads[r], record)
             pc[r] += 1
 
@@ -426,11 +441,13 @@ class MockComm(CommBackend):
 
     def __init__(self, ranks: int = 2, rank_speed=None, latency=DEFAULT_LATENCY, bandwidth=DEFAULT_BANDWIDTH,
                  delay=0.0, reorder=False, seed=0, timing="auto", mode="execute", costs=None,
-                 duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="auto", **options):
+                 duplicate=0.0, loss=0.0, watchdog=0.0, halo_transport="auto", order="auto", **options):
         if options:
             raise InputError(f"--comm mock: unknown option(s) {', '.join(sorted(options))}: expected "
                              "rank_speed, latency, bandwidth, delay, reorder, seed, timing, mode, costs, "
-                             "duplicate, loss, watchdog, halo_transport")
+                             "duplicate, loss, watchdog, halo_transport, order")
+        if order not in ("auto", "clock", "eager"):
+            raise InputError(f"--comm mock: order: expected 'auto', 'clock' or 'eager', got {order!r}")
         super().__init__(ranks, halo_transport)
         if timing not in ("auto", "model", "wall", "device"):
             raise InputError(f"--comm mock: timing: expected 'auto', 'model', 'wall' or 'device', got {timing!r}")
@@ -447,7 +464,10 @@ class MockComm(CommBackend):
         self.timing = timing
         self.mode = mode
         self.costs = CostModel.load(costs)
-        self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed, duplicate, loss, watchdog)
+        if order == "auto":
+            order = "clock" if (delay or reorder or duplicate or loss) else "eager"
+        self.order = order
+        self.engine = Engine(ranks, latency, bandwidth, delay, reorder, seed, duplicate, loss, watchdog, order)
         self.endpoints = [MockEndpoint(self.engine, r) for r in range(ranks)]
         self._k = {}
         self._clock_on = False     # the compute backend's device task clock is running
