@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -29,7 +30,7 @@ TIMERS = ("SendEdge", "RecvHalo", "SendDisplaced", "RecvDisplaced", "SynchroDt",
 def run(scene, dp, ranks, steps, out, backend="numba-cpu", schedule="production", precision=None):
     # one numba thread a rank on the CPU; on a GPU every rank's kernels run on the device
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1") if backend == "numba-cpu" else dict(os.environ)
-    mpiexec = os.path.join(sys.prefix, "bin", "mpiexec")
+    mpiexec = shutil.which("mpiexec") or os.path.join(sys.prefix, "bin", "mpiexec")
     cmd = [mpiexec, "-n", str(ranks), sys.executable, "-m", "sphgraph", "run", scene, "--dp", str(dp),
            "--comm", "mpi", "--max-steps", str(steps), "--out", out, "--overwrite", "--backend", backend,
            "--schedule", schedule] + (["--precision", precision] if precision else [])

@@ -184,13 +184,13 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     mps-21)   export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
               mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
               nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
-              stage mps2_21 300 python3 benchmarks/gpu_multi.py --dp 0.006 0.004 --ranks 2 --steps 30 --warmup 3 \
+              stage mps2_21 240 python3 benchmarks/gpu_multi.py --dp 0.006 0.004 --ranks 2 --steps 30 --warmup 3 \
                 --schedules production bulk-synchronous --transports ipc --json "$OUT/mps2_21.json"
-              stage mps4_21 120 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
+              stage mps4_21 100 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
                 --schedules production --transports ipc --json "$OUT/mps4_21.json"
-              stage mps_match 200 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_cuda_halo.py \
+              stage mps_match 150 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_cuda_halo.py \
                 -k mpiexec_ipc
-              stage mps_breakdown 200 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
+              stage mps_breakdown 100 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
                 --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
                 --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
               echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
