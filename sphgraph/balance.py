@@ -114,21 +114,20 @@ def imbalance(values) -> float:
     return float(np.abs(v - m).max() / m) if m > 0 else 0.0
 
 
-def loads(hist_edges, hist, cuts, reach) -> np.ndarray:
-    """Fluid particles each rank processes for `cuts`: its own plus its halos (within reach)."""
-    cum = np.concatenate([[0.0], np.cumsum(hist)])
-
-    def below(x):  # particles with coordinate < x
-        return np.interp(x, hist_edges, cum)
+def loads(hist_edges, hist, cuts, reach, cum=None) -> np.ndarray:
+    """Fluid particles each rank processes for `cuts`: its own plus its halos (within reach).
+    `cum`: the histogram's running sum with a leading 0, when the caller holds it."""
+    if cum is None:
+        cum = np.concatenate([[0.0], np.cumsum(hist)])
+    cuts = np.asarray(cuts, float)
     n = len(cuts) - 1
-    out = np.empty(n)
-    for r in range(n):
-        lo, hi = cuts[r], cuts[r + 1]
-        own = below(hi) - below(lo)
-        halo = (below(lo) - below(lo - reach) if r > 0 else 0.0) + \
-               (below(hi + reach) - below(hi) if r < n - 1 else 0.0)
-        out[r] = own + halo
-    return out
+    # particles with coordinate < x at every point the loads need, in one interpolation
+    b = np.interp(np.concatenate([cuts, cuts - reach, cuts + reach]), hist_edges, cum)
+    at, below_r, above_r = b[:n + 1], b[n + 1:2 * n + 2], b[2 * n + 2:]
+    halo = np.zeros(n)
+    halo[1:] = at[1:n] - below_r[1:n]            # below the rank's lower cut
+    halo[:-1] += above_r[1:n] - at[1:n]          # above its upper cut
+    return (at[1:] - at[:-1]) + halo
 
 
 def solve_cuts(hist_edges, hist, old_cuts, targets, reach, min_width, iters=60) -> np.ndarray:
@@ -142,12 +141,11 @@ def solve_cuts(hist_edges, hist, old_cuts, targets, reach, min_width, iters=60) 
     inner_old = old_cuts.copy()
     inner_old[0], inner_old[-1] = lo_x, hi_x
     for _ in range(iters):
-        load = loads(hist_edges, hist, cuts, reach)
+        load = loads(hist_edges, hist, cuts, reach, cum)
         # move each cut by half the excess of the heavier side, in particle-count space
-        for r in range(1, n):
-            excess = (load[r - 1] - targets[r - 1]) - (load[r] - targets[r])
-            c = np.interp(cuts[r], hist_edges, cum) - 0.5 * excess
-            cuts[r] = np.interp(np.clip(c, 0, cum[-1]), cum, hist_edges)
+        excess = (load[:-1] - targets[:-1]) - (load[1:] - targets[1:])
+        c = np.interp(cuts[1:n], hist_edges, cum) - 0.5 * excess
+        cuts[1:n] = np.interp(np.clip(c, 0, cum[-1]), cum, hist_edges)
         cuts = _constrain(cuts, inner_old, min_width)
     out = cuts.copy()
     out[0], out[-1] = -np.inf, np.inf
