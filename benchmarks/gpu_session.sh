@@ -201,6 +201,10 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 mpiexec -n 2 -bind-to core:8 env NUMBA_NUM_THREADS=8 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
                 mpiexec -n 4 -bind-to core:4 env NUMBA_NUM_THREADS=4 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
                 mpiexec -n 4 env NUMBA_NUM_THREADS=4 \$B --comm mpi; done | tee $OUT/cpu_mpi_21.jsonl" ;;
+    # one-rank speed of the tree before the house refactors (39916ab, in .before/tree: see
+    # benchmarks/house_ab.sh) against this tree: SPHERIC 2 at 4.4 M, 50 timed steps, alternated, 3 rounds
+    house-ab) stage house_ab 200 bash benchmarks/house_ab.sh .before/tree 3 "$OUT/house_ab.jsonl" \
+                examples/spheric2.toml --dp 0.006 --steps 50 --warmup 3 --backend numba-cuda ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

@@ -63,6 +63,7 @@ import copy
 import threading
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +71,7 @@ import numpy as np
 from sphgraph.errors import CommError, DeadlockError, InputError
 from sphgraph.errors import SphgraphError as InternalError
 from sphgraph.registry import register
-from sphgraph.wire import payload_nbytes
+from sphgraph.wire import WirePayload, payload_nbytes
 
 from sphgraph.perfmodel import (DEFAULT_BANDWIDTH, DEFAULT_LATENCY, CostModel, allreduce_seconds,
                                 pairs_per_particle, step_pricing, task_features)
@@ -117,9 +118,26 @@ class _Faults:
 
 
 
+_SHARED = (int, float, bool, str, bytes, type(None), np.generic)   # immutable: no copy needed
+
+
 def freeze(payload):
-    """A private deep copy: later changes by the sender never reach the receiver."""
-    return copy.deepcopy(payload)
+    """A private copy: later changes by the sender never reach the receiver. Arrays and
+    the arrays among a payload's attributes are copied, immutable values shared, anything
+    else deep-copied; a WirePayload copies itself as its type says (`__deepcopy__`)."""
+    if isinstance(payload, np.ndarray):
+        return payload.copy()
+    d = getattr(payload, "__dict__", None)
+    if d is None or isinstance(payload, WirePayload):
+        return copy.deepcopy(payload)
+    out = copy.copy(payload)
+    od = out.__dict__
+    for k, v in d.items():
+        if isinstance(v, np.ndarray):
+            od[k] = v.copy()
+        elif not isinstance(v, _SHARED):
+            od[k] = copy.deepcopy(v)
+    return out
 
 
 def _rows(payload) -> int:
@@ -356,6 +374,12 @@ class Engine:
         pc = {r: 0 for r in ranks}
         last = None
         while True:
+            if self.eager and last is not None and pc[last] < len(programs[last]):
+                t = programs[last][pc[last]]    # the rank that ran last goes on while it can
+                if not t.collective and self._missing(last, t) is None:
+                    run_task(last, t, record)
+                    pc[last] += 1
+                    continue
             pending = [r for r in ranks if pc[r] < len(programs[r])]
             if not pending:
                 self._check_queues()
@@ -473,6 +497,7 @@ class MockComm(CommBackend):
         self._clock_on = False     # the compute backend's device task clock is running
         self._window = False       # device_clock_window(True): timing "auto" reads the device
         self._compute = None       # the compute backend of the last step
+        self._pool = None          # threads of the collectives that exchange inside their bodies
 
     @property
     def local_ranks(self) -> list[int]:
@@ -601,11 +626,12 @@ class MockComm(CommBackend):
             elif len(ranks) == 1:
                 go(ranks[0])
             else:
-                threads = [threading.Thread(target=go, args=(r,), daemon=True) for r in ranks]
-                for t in threads:
-                    t.start()
-                for t in threads:
-                    t.join()
+                # the same N threads for every collective of the run: a rank's body finds its
+                # thread's device context (numba-cuda) already made current
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(max_workers=self.size, thread_name_prefix="mock-rank")
+                for f in [self._pool.submit(go, r) for r in ranks]:
+                    f.result()
             if errors:
                 first = min(errors)
                 e = errors[first]

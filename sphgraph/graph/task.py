@@ -7,6 +7,7 @@ canonical step order defines what "after" means, like StarPU's STF model).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 from .kinds import TaskKind
@@ -53,11 +54,14 @@ class Task:
     reduce: tuple | None = None
     meta: dict = field(default_factory=dict)
 
-    @property
+    # label and name are read for every task a rank runs (the engine, the records, the
+    # lanes): computed once; a task is never changed after it is made (`replace` makes a
+    # new one)
+    @cached_property
     def label(self) -> str:
         return self.kind.label if isinstance(self.kind, TaskKind) else self.kind
 
-    @property
+    @cached_property
     def name(self) -> str:
         return self.label if self.stage is None else f"{self.label}@{self.stage}"
 
