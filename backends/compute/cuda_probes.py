@@ -4,11 +4,11 @@ maths (sphgraph.physics.probes, retargeted).
 
 The kernels read the rank's rows where the step left them: float64 positions (px, py, pz),
 the (vx, vy, vz, rho) records, the fluid half of the kind-split cell grid of this step's
-sort (rows moved since: one cell more of reach, physics.probes). Only the sums cross the
-bus: 5 numbers a point, 3 a body, 2 a height column, and on several ranks the few body rows
-near the rank's ends (`probe_bounds`). All sums are float64 whatever the run's type (the
-arrays' values are read in their type). Reductions run in a fixed order (block trees), so a
-sample is the same bits every run.
+sort (the cells within 2h and the most a row moved since of each point: `_probe_radius`).
+Only the sums cross the bus: 5 numbers a point, 3 a body, 2 a height column, and on several
+ranks the few body rows near the rank's ends (`probe_bounds`). All sums are float64 whatever
+the run's type (the arrays' values are read in their type). Reductions run in a fixed order
+(block trees), so a sample is the same bits every run.
 
 Kernels (one thread a point, a boundary row, or a vertical cell of a column):
 
@@ -36,17 +36,19 @@ from sphgraph.config import O_KERNEL
 from sphgraph.physics.probes import body_row_force, column_zrange, point_sums
 
 from . import cuda_kernels as CK
+from . import cpu_probes
 from .cpu_probes import sort_edge_rows
 from .cuda_memory import VEC, count_bytes, host_wait
 
 RT = np.float64
 PB = 128            # threads a block of the reductions (a power of two)
+MOVED_H = 1.0       # the most a row moves between the sort and the sample, in h (_probe_radius)
 # The probes task is a collective: mock ranks run it in one thread each, at once. A GPU
 # takes their launches concurrently; numba's simulator runs one kernel at a time.
 _SIM_ONE_KERNEL = threading.Lock() if CK.SIMULATOR else contextlib.nullcontext()
 
 
-def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, prm,
+def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius, prm,
                     dim, out):
     """out[2c], out[2c + 1] = lowest, highest vertical coordinate of the fluid rows within
     2h of column c (cols[2c], cols[2c + 1]) horizontally; block c, its threads over the
@@ -60,7 +62,7 @@ def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1
     v = t
     while v < nvert:
         a, b = column_zrange(cols[2 * c], cols[2 * c + 1], v, v, px, py, pz, 1, 0, 0, start, o0, o1, o2,
-                             inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim)
+                             inv_size, n0, n1, n2, a0, a1, a2, radius, prm, dim)
         lo = min(lo, a)
         hi = max(hi, b)
         v += PB
@@ -79,14 +81,14 @@ def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1
         out[2 * c + 1] = smax[0]
 
 
-def k_point_sums(pts, k, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim,
+def k_point_sums(pts, k, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius, prm, dim,
                  kernel, out):
     """out[5i:5i+5] = physics.probes.point_sums at point i (pts[3i:3i+3])."""
     i = cuda.grid(1)
     if i >= k:
         return
     sw, swp, s0, s1, s2 = point_sums(pts[3 * i], pts[3 * i + 1], pts[3 * i + 2], px, py, pz, 1, 0, 0, vel4, 4,
-                                     vel4, 4, 3, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+                                     vel4, 4, 3, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius,
                                      prm, dim, kernel)
     out[5 * i] = sw
     out[5 * i + 1] = swp
@@ -104,7 +106,7 @@ def _in_box(boxes, b, x, y, z, dim):
     return inside
 
 
-def k_row_forces(i0, n, px, py, pz, vel4, boxes, nb, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
+def k_row_forces(i0, n, px, py, pz, vel4, boxes, nb, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius,
                  prm, dim, kernel, fx, fy, fz):
     """Boundary rows i0..n-1: f[i - i0] = the fluid's force on row i when it lies in any
     body box (boxes[6b:6b+6]: lo xyz, hi xyz), else 0."""
@@ -125,7 +127,7 @@ def k_row_forces(i0, n, px, py, pz, vel4, boxes, nb, start, o0, o1, o2, inv_size
     gz = 0.0
     if inside:
         gx, gy, gz = body_row_force(x, y, z, vel4[4 * i + 3], px, py, pz, 1, 0, 0, vel4, 4, 3, start, o0, o1, o2,
-                                    inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel)
+                                    inv_size, n0, n1, n2, a0, a1, a2, radius, prm, dim, kernel)
     fx[i - i0] = gx
     fy[i - i0] = gy
     fz[i - i0] = gz
@@ -240,7 +242,7 @@ def k_pick_edges(i0, n, px, py, pz, vel4, dim, xa, ext, band, boxes, nb, cnt, ca
                 out[5 * k + 4] = b
 
 
-def k_extra_forces(m, rows, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, prm,
+def k_extra_forces(m, rows, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius, prm,
                    dim, kernel, out):
     """out[3i:3i+3] = the owned fluid's force on edge row i of another rank (rows[5i:5i+5]:
     x, y, z, rho, body)."""
@@ -248,7 +250,7 @@ def k_extra_forces(m, rows, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n
     if i >= m:
         return
     gx, gy, gz = body_row_force(rows[5 * i], rows[5 * i + 1], rows[5 * i + 2], rows[5 * i + 3], px, py, pz, 1, 0,
-                                0, vel4, 4, 3, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, prm,
+                                0, vel4, 4, 3, start, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, radius, prm,
                                 dim, kernel)
     out[3 * i] = gx
     out[3 * i + 1] = gy
@@ -280,9 +282,16 @@ class CudaProbes:
         if g is None or g.get("rows") != (dv.n, dv.nf):
             return None
         o, dims, axes = g["origin"], g["dims"], g["axes"]
-        # rows moved since the sort (the end of the step): one cell more (physics.probes)
         return (dv.arrays["start"], float(o[0]), float(o[1]), float(o[2]), float(g["inv"]), int(dims[0]),
-                int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(g["reach"]) + 1)
+                int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), self._probe_radius(state))
+
+    @staticmethod
+    def _probe_radius(state) -> float:
+        """The cells searched about a point: the grid is of the rows' positions at the sort
+        (the step's start), so 2h plus the most a fluid row moves in a step, bounded by h: a
+        CFL step moves one by a few hundredths of h (dt <= CFL h / (10 |v|max) and
+        CFL sqrt(h / |a|max)), shifting by at most 0.1 dp a component."""
+        return (cpu_probes.SEARCH + MOVED_H) * float(state.consts.h)
 
     def _probe_in(self, state, name, host):
         """`host` (float64) on the device in the kept buffer `name` (flat)."""

@@ -19,16 +19,16 @@ Source rows are read as the force kernels read them on each backend: row j's pos
 spx[ps j], spy[ps j + po1], spz[ps j + po2] (one flat (n, dim) array thrice on the CPU, one
 array per axis on the GPU), its velocity at sv[vs j + d] and its density at sr[rs j + ro]
 (flat (n, dim) velocities and a density array on the CPU; the GPU's (vx, vy, vz, rho)
-records, vs = rs = 4, ro = 3). The grid is `cells.cell_window`'s (origin, cells and particle
-axis along fast, mid, slow): a grid built for the rows' present positions takes the reach of
-a 2h support; a grid from before the rows last moved takes one cell more (a row moves far
-less than a cell in a step).
+records, vs = rs = 4, ro = 3). The grid is as `cells.cell_window` takes it (origin, cells and
+particle axis along fast, mid, slow, a row of cells contiguous); the cells searched are those
+within `radius` of the point along each axis (`cells_within`): 2h for a grid built for the
+rows' present positions, 2h plus the most any row moved since for an older grid (the
+device's, from the start of the step).
 """
 import math
 
 from numba import njit
 
-from sphgraph.cells import cell_window
 from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
 
 from .eos import tait
@@ -36,10 +36,18 @@ from .kernels import grad_factor, kernel_w
 
 
 @njit(inline="always", cache=True)
-def column_window(h0, h1, vlo, vhi, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach, dim):
-    """Cells of the vertical column over the horizontal point (h0, h1) (h0 only in 2D):
-    within `reach` cells of it along the horizontal axes, cells vlo..vhi along the vertical
-    one (particle axis dim - 1), clipped to the grid: (lo0, hi0, lo1, hi1, lo2, hi2, empty)."""
+def _span(c, radius, o, inv_size, nk):
+    """Cells (lo, hi) along one grid axis that hold coordinates within `radius` of c."""
+    return max(int(math.floor((c - radius - o) * inv_size)), 0), min(int(math.floor((c + radius - o) * inv_size)), nk - 1)
+
+
+@njit(inline="always", cache=True)
+def cells_within(x, y, z, radius, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, vertical, vlo, vhi):
+    """Cells of the grid that hold points within `radius` of (x, y, z) along each axis, clipped
+    to the grid: (lo0, hi0, lo1, hi1, lo2, hi2, empty) along (fast, mid, slow); a missing axis
+    (a = -1) spans cell 0. Along the particle axis `vertical` (-1: none) the cells vlo..vhi
+    instead (a column). 2 or 3 cells an axis for a radius of 2h in cells of 2h, where
+    `cells.cell_window` takes 3."""
     lo0 = 0
     hi0 = 0
     lo1 = 0
@@ -52,14 +60,12 @@ def column_window(h0, h1, vlo, vhi, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2
         if a < 0:
             continue
         nk = n0 if k == 0 else (n1 if k == 1 else n2)
-        if a == dim - 1:
+        if a == vertical:
             lo = max(vlo, 0)
             hi = min(vhi, nk - 1)
         else:
-            o = o0 if k == 0 else (o1 if k == 1 else o2)
-            c = int(math.floor(((h0 if a == 0 else h1) - o) * inv_size))
-            lo = max(c - reach, 0)
-            hi = min(c + reach, nk - 1)
+            lo, hi = _span(x if a == 0 else (y if a == 1 else z), radius, o0 if k == 0 else (o1 if k == 1 else o2),
+                           inv_size, nk)
         if lo > hi:
             empty = True
         if k == 0:
@@ -76,15 +82,15 @@ def column_window(h0, h1, vlo, vhi, o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2
 
 @njit(cache=True)
 def column_zrange(h0, h1, vlo, vhi, spx, spy, spz, ps, po1, po2, start, o0, o1, o2, inv_size, n0, n1, n2,
-                  a0, a1, a2, reach, prm, dim):
+                  a0, a1, a2, radius, prm, dim):
     """(lowest, highest) vertical coordinate of the rows within 2h of the column over
     (h0, h1) along every horizontal axis (|x_a - h_a| < 2h), among the cells vlo..vhi along
     the vertical; (inf, -inf) when there is none."""
     two_h = 2.0 * prm[P_H]
     zmin = math.inf
     zmax = -math.inf
-    lo0, hi0, lo1, hi1, lo2, hi2, empty = column_window(h0, h1, vlo, vhi, o0, o1, o2, inv_size, n0, n1, n2,
-                                                        a0, a1, a2, reach, dim)
+    lo0, hi0, lo1, hi1, lo2, hi2, empty = cells_within(h0, h1, 0.0, radius, o0, o1, o2, inv_size, n0, n1, n2,
+                                                       a0, a1, a2, dim - 1, vlo, vhi)
     if empty:
         return zmin, zmax
     for c2 in range(lo2, hi2 + 1):
@@ -109,7 +115,7 @@ def column_zrange(h0, h1, vlo, vhi, spx, spy, spz, ps, po1, po2, start, o0, o1, 
 
 @njit(cache=True)
 def point_sums(x, y, z, spx, spy, spz, ps, po1, po2, sv, vs, sr, rs, ro, start, o0, o1, o2, inv_size,
-               n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel):
+               n0, n1, n2, a0, a1, a2, radius, prm, dim, kernel):
     """At the point (x, y, z): (sum V W, sum V W P, sum V W vx, sum V W vy, sum V W vz) over
     the rows within 2h, V = m / rho, W = W(|x - x_j|), P = Tait(rho) (vz = 0 in 2D)."""
     support2 = prm[P_SUPPORT2]
@@ -119,8 +125,8 @@ def point_sums(x, y, z, spx, spy, spz, ps, po1, po2, sv, vs, sr, rs, ro, start, 
     s0 = 0.0
     s1 = 0.0
     s2 = 0.0
-    lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2,
-                                                      a0, a1, a2, reach)
+    lo0, hi0, lo1, hi1, lo2, hi2, empty = cells_within(x, y, z, radius, o0, o1, o2, inv_size, n0, n1, n2,
+                                                       a0, a1, a2, -1, 0, 0)
     if empty:
         return sw, swp, s0, s1, s2
     for c2 in range(lo2, hi2 + 1):
@@ -148,7 +154,7 @@ def point_sums(x, y, z, spx, spy, spz, ps, po1, po2, sv, vs, sr, rs, ro, start, 
 
 @njit(cache=True)
 def body_row_force(x, y, z, rb, spx, spy, spz, ps, po1, po2, sr, rs, ro, start, o0, o1, o2, inv_size,
-                   n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel):
+                   n0, n1, n2, a0, a1, a2, radius, prm, dim, kernel):
     """The pressure force of the rows within 2h on the boundary row at (x, y, z) of density
     rb: m_f m_b sum_a (P_a + P_b)/(rho_a rho_b) F_ab (r_a - r_b), as (fx, fy, fz)."""
     support2 = prm[P_SUPPORT2]
@@ -156,8 +162,8 @@ def body_row_force(x, y, z, rb, spx, spy, spz, ps, po1, po2, sr, rs, ro, start, 
     fx = 0.0
     fy = 0.0
     fz = 0.0
-    lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(x, y, z, o0, o1, o2, inv_size, n0, n1, n2,
-                                                      a0, a1, a2, reach)
+    lo0, hi0, lo1, hi1, lo2, hi2, empty = cells_within(x, y, z, radius, o0, o1, o2, inv_size, n0, n1, n2,
+                                                       a0, a1, a2, -1, 0, 0)
     if not empty:
         for c2 in range(lo2, hi2 + 1):
             for c1 in range(lo1, hi1 + 1):
