@@ -63,8 +63,10 @@ def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1
     while v < nvert:
         a, b = column_zrange(cols[2 * c], cols[2 * c + 1], v, v, px, py, pz, 1, 0, 0, start, o0, o1, o2,
                              inv_size, n0, n1, n2, a0, a1, a2, radius, prm, dim)
-        lo = min(lo, a)
-        hi = max(hi, b)
+        if a < lo:
+            lo = a
+        if b > hi:
+            hi = b
         v += PB
     smin[t] = lo
     smax[t] = hi
@@ -72,8 +74,10 @@ def k_column_zrange(cols, nvert, px, py, pz, start, o0, o1, o2, inv_size, n0, n1
     s = PB // 2
     while s > 0:
         if t < s:
-            smin[t] = min(smin[t], smin[t + s])
-            smax[t] = max(smax[t], smax[t + s])
+            if smin[t + s] < smin[t]:
+                smin[t] = smin[t + s]
+            if smax[t + s] > smax[t]:
+                smax[t] = smax[t + s]
         cuda.syncthreads()
         s //= 2
     if t == 0:
@@ -201,8 +205,10 @@ def k_extent(xa, n, ext):
     hi = -math.inf
     i = cuda.grid(1)
     while i < n:
-        lo = min(lo, xa[i])
-        hi = max(hi, xa[i])
+        if xa[i] < lo:
+            lo = xa[i]
+        if xa[i] > hi:
+            hi = xa[i]
         i += cuda.gridsize(1)
     smin[t] = lo
     smax[t] = hi
@@ -210,8 +216,10 @@ def k_extent(xa, n, ext):
     s = PB // 2
     while s > 0:
         if t < s:
-            smin[t] = min(smin[t], smin[t + s])
-            smax[t] = max(smax[t], smax[t + s])
+            if smin[t + s] < smin[t]:
+                smin[t] = smin[t + s]
+            if smax[t + s] > smax[t]:
+                smax[t] = smax[t + s]
         cuda.syncthreads()
         s //= 2
     if t == 0:
@@ -274,8 +282,7 @@ def build() -> types.SimpleNamespace:
 class CudaProbes:
     """`probe_bounds` / `probe_sums` on the device rows (mixed into NumbaCUDA)."""
 
-    @staticmethod
-    def _probe_grid(dv):
+    def _probe_grid(self, state, dv):
         """The grid arguments of the kernels, or None when the device grid is not of the rows
         the device holds (uploaded again since the sort, or none sorted yet)."""
         g = None if dv is None else dv.grid
@@ -323,7 +330,7 @@ class CudaProbes:
 
     def probe_bounds(self, state, columns, boxes, band) -> dict:
         dv = state.extra.get("dev")
-        grid = self._probe_grid(dv)
+        grid = self._probe_grid(state, dv)
         if grid is None:
             return super().probe_bounds(state, columns, boxes, band)
         with _SIM_ONE_KERNEL:
@@ -382,7 +389,7 @@ class CudaProbes:
 
     def probe_sums(self, state, points, boxes, extra) -> dict:
         dv = state.extra.get("dev")
-        grid = self._probe_grid(dv)
+        grid = self._probe_grid(state, dv)
         if grid is None:
             return super().probe_sums(state, points, boxes, extra)
         with _SIM_ONE_KERNEL:
