@@ -4,10 +4,10 @@ probe_reference.py) within round-off, on one rank and on three mock ranks, numba
 numba-cuda (numba's CUDA simulator, float64, one and two mock ranks) equal to numba-cpu's sums
 of the same rows.
 
-The scene: a 2D dam break against a column (~1,000 particles), three point probes (one dry),
+The scenes: a 2D dam break against a column (~1,000 particles), three point probes (one dry),
 three height columns (one dry), three bodies (the column, the whole tank, its floor, which
-every rank holds a part of); and examples/platform_wave.toml (3D, a wave maker, heights and
-forces on the legs). Measured: 3e-15 (one rank) and 2e-15 (three ranks) relative, heights
+every rank holds a part of); its 3D twin (~1,000 particles); and examples/platform_wave.toml
+(3D, a wave maker, heights and forces on the legs). Measured: 3e-15 (one rank) and 2e-15 (three ranks) relative, heights
 equal; platform_wave's forces 3e-13 of the largest component (its legs' net force is a
 small remainder of large opposite pressures). Each check also shows that a result 1e-10 off fails it, and that the body rows near
 the ranks' ends matter (without them the forces on three ranks are ~1e-2 off).
@@ -40,6 +40,20 @@ SCENE_2D = {
     "forces": {"bodies": [{"name": "col", "min": [0.3, 0.0], "max": [0.4, 0.2]},
                           {"name": "tank", "min": [-1, -1], "max": [2, 2]},
                           {"name": "floor", "min": [-1, -1], "max": [2, 0.0]}]}}
+
+# a 3D tank with a column, for the device kernels' third axis (~1,100 particles; long enough
+# for two ranks of 6h)
+SCENE_3D = {
+    "format": 1, "dim": 3, "dp": 0.05, "end_time": 1.0,
+    "domain": {"min": [-0.15, -0.15, -0.15], "max": [1.25, 0.45, 0.6], "origin": [0.0, 0.0, 0.0]},
+    "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.5, 0.3, 0.25]}],
+    "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [1.1, 0.3, 0.5], "layers": 1},
+                 {"type": "box", "min": [0.6, 0.1, 0.0], "max": [0.7, 0.2, 0.2]}],
+    "probes": {"points": [{"name": "P1", "position": [0.1, 0.15, 0.05]}, {"name": "Pdry", "position": [0.9, 0.15, 0.4]}],
+               "heights": [{"name": "H1", "position": [0.1, 0.15]}, {"name": "Hdry", "position": [0.9, 0.25]}]},
+    "forces": {"bodies": [{"name": "col", "min": [0.6, 0.1, 0.0], "max": [0.7, 0.2, 0.2]},
+                          {"name": "tank", "min": [-1, -1, -1], "max": [2, 2, 2]},
+                          {"name": "floor", "min": [-1, -1, -1], "max": [2, 2, 0.0]}]}}
 
 
 def errors(s, got: dict, ref: dict, speed: float) -> dict:
@@ -96,10 +110,10 @@ def check_steps(scene, steps, **kw):
     return worst, sim
 
 
-@pytest.mark.parametrize("ranks", [1, 3])
-def test_sums_of_ranks_equal_the_gathered_sample_2d(ranks):
+@pytest.mark.parametrize("dim, ranks", [(2, 1), (2, 3), (3, 1), (3, 2)])
+def test_sums_of_ranks_equal_the_gathered_sample(dim, ranks):
     kw = {} if ranks == 1 else {"comm": "mock", "ranks": ranks}
-    worst, sim = check_steps(Scene.from_dict(SCENE_2D), 12, **kw)
+    worst, sim = check_steps(Scene.from_dict(SCENE_2D if dim == 2 else SCENE_3D), 12 if dim == 2 else 6, **kw)
     assert max(worst.values()) < TOL, worst
     assert worst["height"] == 0.0, worst
     if ranks > 1:   # the floor crosses every cut
@@ -153,15 +167,14 @@ SCRIPT = textwrap.dedent('''
     import numpy as np
     sys.path.insert(0, "tests")
     import probe_reference as R
-    from test_probe_sums import SCENE_2D, errors, last_rows
+    from test_probe_sums import SCENE_2D, SCENE_3D, errors, last_rows
     from sphgraph import Scene, Simulation
     from sphgraph.backends.compute.base import ComputeBackend
 
-    def compare(ranks, steps, precision="float64"):
+    def compare(ranks, steps, precision="float64", dim=2):
         """numba-cuda's partial sums of each rank against numba-cpu's (ComputeBackend's host
         implementation) of the same rows, and the sample against the gathered reference."""
-        d = dict(SCENE_2D, dp=0.03)
-        scene = Scene.from_dict(d)
+        scene = Scene.from_dict(dict(SCENE_2D, dp=0.03) if dim == 2 else SCENE_3D)
         kw = {} if ranks == 1 else {"comm": "mock", "ranks": ranks}
         sim = Simulation(scene, backend="numba-cuda", precision=precision, sample=True, **kw)
         for _ in range(steps):
@@ -197,12 +210,13 @@ SCRIPT = textwrap.dedent('''
 ''')
 
 
-@pytest.mark.parametrize("ranks", [1, 2])
-def test_simulator_sums_equal_numba_cpu(ranks):
+@pytest.mark.parametrize("ranks, dim", [(1, 2), (2, 2), (1, 3), (2, 3)])
+def test_simulator_sums_equal_numba_cpu(ranks, dim):
     """Measured: each rank's partial sums 7e-16 from numba-cpu's (relative to the largest of
     each kind), the sample 2e-15 off the reference; on two ranks 236 edge rows exchanged."""
-    r = run_script(SCRIPT + f"\nprint(json.dumps(compare({ranks}, 2)))", sim=True, timeout=600)
-    assert r["samples"] == 2, r
+    steps = 2 if dim == 2 else 1
+    r = run_script(SCRIPT + f"\nprint(json.dumps(compare({ranks}, {steps}, dim={dim})))", sim=True, timeout=600)
+    assert r["samples"] == steps, r
     assert all(b > 0 for b in r["on_device"]) and not any(r["host_bytes"]), r   # sampled on the device
     assert r["partial_rel"] < TOL, r
     assert max(r["sample"].values()) < TOL and r["sample"]["height"] == 0.0, r
@@ -214,11 +228,12 @@ def test_simulator_sums_equal_numba_cpu(ranks):
 @gpu
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_gpu_sums_equal_numba_cpu(precision):
-    """On a real GPU (lanes, fast launches), one and two mock ranks, 3 steps. The sums are
+    """On a real GPU (lanes, fast launches), one and two mock ranks, 2D and 3D, 3 steps. The sums are
     float64 in both precisions, so the partial sums match numba-cpu's of the same rows to
     round-off either way; a float32 run's gathered reference takes float32 pressures
     (host_arrays), hence 1e-6 there."""
-    out = run_script(SCRIPT + f"\nprint(json.dumps([compare(1, 3, {precision!r}), compare(2, 3, {precision!r})]))",
+    out = run_script(SCRIPT + f"\nprint(json.dumps([compare(1, 3, {precision!r}), compare(2, 3, {precision!r}), "
+                              f"compare(1, 3, {precision!r}, dim=3), compare(2, 3, {precision!r}, dim=3)]))",
                      sim=False, timeout=600)
     for r in out:
         assert all(b > 0 for b in r["on_device"]) and not any(r["host_bytes"]), r
