@@ -7,10 +7,11 @@ of the same rows.
 The scenes: a 2D dam break against a column (~1,000 particles), three point probes (one dry),
 three height columns (one dry), three bodies (the column, the whole tank, its floor, which
 every rank holds a part of); its 3D twin (~1,000 particles); and examples/platform_wave.toml
-(3D, a wave maker, heights and forces on the legs). Measured: 3e-15 (one rank) and 2e-15 (three ranks) relative, heights
-equal; platform_wave's forces 3e-13 of the largest component (its legs' net force is a
-small remainder of large opposite pressures). Each check also shows that a result 1e-10 off fails it, and that the body rows near
-the ranks' ends matter (without them the forces on three ranks are ~1e-2 off).
+(3D, a wave maker, heights and forces on the legs). Measured: 3e-15 (one rank) and 2e-15
+(three ranks) relative, heights equal; platform_wave's forces 3e-13 of the largest component
+(its legs' net force is a small remainder of large opposite pressures). Each check also shows
+that a result 1e-10 off fails it, and that the body rows near the ranks' ends matter (without
+them the forces on three ranks are ~1e-2 off).
 """
 from __future__ import annotations
 
@@ -49,7 +50,8 @@ SCENE_3D = {
     "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.5, 0.3, 0.25]}],
     "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [1.1, 0.3, 0.5], "layers": 1},
                  {"type": "box", "min": [0.6, 0.1, 0.0], "max": [0.7, 0.2, 0.2]}],
-    "probes": {"points": [{"name": "P1", "position": [0.1, 0.15, 0.05]}, {"name": "Pdry", "position": [0.9, 0.15, 0.4]}],
+    "probes": {"points": [{"name": "P1", "position": [0.1, 0.15, 0.05]},
+                          {"name": "Pdry", "position": [0.9, 0.15, 0.4]}],
                "heights": [{"name": "H1", "position": [0.1, 0.15]}, {"name": "Hdry", "position": [0.9, 0.25]}]},
     "forces": {"bodies": [{"name": "col", "min": [0.6, 0.1, 0.0], "max": [0.7, 0.2, 0.2]},
                           {"name": "tank", "min": [-1, -1, -1], "max": [2, 2, 2]},
@@ -83,7 +85,8 @@ def perturbed(got: dict, rel=1e-10) -> dict:
     out = {"probes": {}, "forces": {k: v * (1 + rel) for k, v in got["forces"].items() if k not in ("time", "step")}}
     for k, v in got["probes"].items():
         if isinstance(v, dict):
-            out["probes"][k] = {"pressure": v["pressure"] * (1 + rel) + rel, "velocity": v["velocity"] * (1 + rel) + rel}
+            out["probes"][k] = {"pressure": v["pressure"] * (1 + rel) + rel,
+                                "velocity": v["velocity"] * (1 + rel) + rel}
         elif k not in ("time", "step"):
             out["probes"][k] = v + rel
     return out

@@ -38,7 +38,9 @@ from .kernels import grad_factor, kernel_w
 @njit(inline="always", cache=True)
 def _span(c, radius, o, inv_size, nk):
     """Cells (lo, hi) along one grid axis that hold coordinates within `radius` of c."""
-    return max(int(math.floor((c - radius - o) * inv_size)), 0), min(int(math.floor((c + radius - o) * inv_size)), nk - 1)
+    lo = int(math.floor((c - radius - o) * inv_size))
+    hi = int(math.floor((c + radius - o) * inv_size))
+    return max(lo, 0), min(hi, nk - 1)
 
 
 @njit(inline="always", cache=True)
