@@ -17,16 +17,20 @@ What is measured (DualSPHysics MeasureTool / ComputeForces conventions):
   f(x) = sum_b f_b V_b W(x - x_b) / sum_b V_b W(x - x_b), V_b = m_b / rho_b; a point with
   no fluid within reach (sum V W < 0.1) reads pressure 0 and velocity 0 (dry).
 * height: the highest z on the vertical line over the point where sum_b V_b W >= 0.5
-  (half-full kernel), searched in steps of dp/4.
+  (half-full kernel), searched in steps of dp/4 from 2h below the lowest fluid particle
+  within 2h of the line (horizontally) to 2h above the highest.
 * body force: what the fluid's pressure exerts on the body's boundary particles,
   F = sum_{b in body} sum_{a fluid} m_a m_b (P_a + P_b)/(rho_a rho_b) (-grad_a W_ab),
-  i.e. minus the pressure force the body puts on the fluid (artificial viscosity left out);
-  summed over a cell grid of the fluid near the body (`sphgraph.probe_kernels`).
+  i.e. minus the pressure force the body puts on the fluid (artificial viscosity left out).
 
-`ProbeSampler.sample(sim)` takes the gathered particles (`Simulation.frame_arrays`, so any
-rank count works): `sphgraph.run` samples the initial state so; after each step the
-``probes`` task (`sample_step`, end of the step) gathers the rows on the root and samples
-those that are due. The series are written with `OutputWriter.write_group` at the end.
+How: every one of these is a sum over fluid particles, and the ranks own disjoint sets of
+them. Each rank sums over its own rows where they live (`ComputeBackend.probe_bounds` /
+`probe_sums`: the cell grids of the rank, on the device for numba-cuda; the per-row maths
+in `sphgraph.physics.probes`), only those sums cross to the host and to the root, which
+adds them in rank order and divides (a point's value is a ratio of sums). The ``probes``
+task (`sample_step`, a collective at the end of each step) samples what is due;
+`sample(sim)` samples outside a step (`sphgraph.run`: the initial state). The series are
+written with `OutputWriter.write_group` at the end.
 """
 from __future__ import annotations
 
@@ -37,9 +41,16 @@ import numpy as np
 
 from .config import K_WENDLAND, KERNELS, P_AW, P_BW
 from .errors import InputError
-from .particles import in_id_order
 
-__all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor"]
+__all__ = ["ProbeSampler", "parse", "kernel_w", "grad_factor", "EDGE_BAND_H"]
+
+# A body's rows near a rank's edge that other ranks' fluid reaches, in units of h. A body row
+# b of rank q within 2h of a fluid row a of rank r != q: the rows were split by the slab cuts
+# at their last migration (this step's send_displaced) and have moved by some d since (a
+# step's flow and shifting: far below h), so b lies within 2h + 2d of the end of q's rows'
+# extent along the split axis that faces r. 3h holds for d up to h/2. The rows' extent, not
+# the cuts: a rebalance in this step moved the cuts, and the rows follow only next step.
+EDGE_BAND_H = 3.0
 
 
 # --------------------------------------------------------------------------- kernels (numpy)
@@ -134,7 +145,6 @@ class ProbeSampler:
         k = scene.constants
         self.kernel = scene.physics.kernel
         self.h, self.aw, self.bw = k.h, float(k.prm[P_AW]), float(k.prm[P_BW])
-        self.prm = np.asarray(k.prm, np.float64)
         self.mass_f, self.mass_b = k.mass_fluid, k.mass_bound
         self.dim = scene.dim
         self.dp = scene.dp
@@ -143,6 +153,21 @@ class ProbeSampler:
         self.next = {"probes": 0.0, "forces": 0.0}
         self._last_time = {"probes": None, "forces": None}
         self.shared = True   # every rank's `probes` task uses this one sampler (one process)
+        s = self.spec
+        # what the backends take (sphgraph.physics.probes): points and columns as (x, y, z) /
+        # (x, y) with zeros beyond the scene's axes; a body's rows are those within 1e-6 dp
+        # (and 1e-9 m) of its box, inclusive
+        self._points = np.zeros((len(s["points"]), 3))
+        for i, (_name, x) in enumerate(s["points"]):
+            self._points[i, :self.dim] = x
+        self._columns = np.zeros((len(s["heights"]), 2))
+        for i, (_name, x) in enumerate(s["heights"]):
+            self._columns[i, :self.dim - 1] = x
+        tol = 1e-9 + 1e-6 * self.dp
+        self._boxes = np.zeros((len(s["bodies"]), 2, 3))
+        for i, (_name, lo, hi) in enumerate(s["bodies"]):
+            self._boxes[i, 0, :self.dim] = np.asarray(lo, np.float64) - tol
+            self._boxes[i, 1, :self.dim] = np.asarray(hi, np.float64) + tol
 
     @property
     def active(self) -> bool:
@@ -154,33 +179,119 @@ class ProbeSampler:
         return ((bool(s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12)
                 or (bool(s["bodies"]) and t >= self.next["forces"] - 1e-12))
 
-    def sample(self, sim, arrays=None) -> None:
-        """Sample what is due at `sim.time` (arrays: `sim.frame_arrays()` when not given)."""
+    def sample(self, sim) -> None:
+        """Sample what is due at `sim.time` outside a step (`sphgraph.run`: the initial
+        state), every rank of this process at once; under MPI every process calls it."""
         if not self.due(sim.time):
             return
-        if arrays is None:
-            arrays = sim.frame_arrays()
-        if arrays is None:   # not the root rank under MPI: its marks advance as the root's do,
-            self._advance_marks(sim.time)   # so every rank joins the same gathers
-            return
-        self.sample_arrays(sim.time, sim.step_count, arrays)
+        comm = sim.comm
+
+        def gather(mine):
+            parts = comm.gather(mine)
+            return None if parts is None else [x for p in parts for x in p]
+
+        local = [(c.rank, c.state, c.compute) for c in sorted(sim.contexts, key=lambda c: c.rank)]
+        self._sample(sim.time, sim.step_count, local, lambda mine: comm.bcast(gather(mine)), gather)
 
     def sample_step(self, ctx) -> None:
         """The ``probes`` task of one rank, at the end of a step (a collective): when a
-        sample is due at the step's end time, every rank's rows go to the root (rank 0),
-        which samples them in id order, as `Simulation.frame_arrays` gives them. Every
-        rank decides from the same time and marks before any rank joins the gather, and
-        only the root's task changes a shared sampler."""
+        sample is due at the step's end time, the rank's partial sums
+        (`ComputeBackend.probe_bounds` / `probe_sums`) go to the root (rank 0), which adds
+        them and samples. Every rank decides from the same time and marks before any rank
+        joins a collective, and only the root's task changes a shared sampler."""
         st = ctx.state
         t = st.time + st.dt   # as the solver counts it once the step ends
         if not self.due(t):
             return
-        rows = ctx.comm.gather(ctx.compute.host_arrays(st))
-        if ctx.rank != 0:
+        ep = ctx.comm
+
+        def gather(mine):
+            parts = ep.gather(mine)
+            return None if parts is None else [x for p in parts for x in p]
+
+        self._sample(t, st.step + 1, [(ctx.rank, st, ctx.compute)],
+                     lambda mine: [x for p in ep.allgather(mine) for x in p], gather)
+
+    def _sample(self, t, step, local, allgather, gather) -> None:
+        """One sample at time `t` from the ranks `local` [(rank, state, compute)] of this
+        process; `allgather(list)` / `gather(list)`: every rank's items in rank order on every
+        rank / on the root (None elsewhere), through the comm's collectives.
+
+        Each rank sums over the fluid rows it owns (a point's Shepard sums, a height
+        column's kernel sums, the pressure force on a body's rows), so the sample is the sum
+        of the ranks' parts, which the root adds in rank order. Two things need a first
+        exchange: a height column searches from the lowest to the highest fluid row near it
+        (every rank's extremes), and a body's rows near a rank's edge meet fluid rows of the
+        next rank (each rank sends its body rows within EDGE_BAND_H h of its rows' extent
+        along the split axis: see there why that is all of them)."""
+        s = self.spec
+        probes = bool(s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12
+        forces = bool(s["bodies"]) and t >= self.next["forces"] - 1e-12
+        nranks = local[0][1].nranks
+        points = self._points if probes else self._points[:0]
+        columns = self._columns if probes else self._columns[:0]
+        boxes = self._boxes if forces else self._boxes[:0]
+        band = EDGE_BAND_H * self.h if forces and nranks > 1 else 0.0
+        every = None
+        if len(columns) or band > 0:
+            every = allgather([cp.probe_bounds(st, columns, boxes, band) for _, st, cp in local])
+        grids = [self._column_grid(c, every) for c in range(len(columns))]
+        pts = np.concatenate([points] + [self._column_points(c, zs) for c, zs in enumerate(grids)])
+        sums = []
+        for r, st, cp in local:
+            extra = np.zeros((0, 5))
+            if band > 0:
+                extra = np.concatenate([extra] + [e["edge"] for q, e in enumerate(every) if q != r])
+            sums.append(cp.probe_sums(st, pts, boxes, extra))
+        parts = gather(sums)
+        if parts is None:   # not the root
             if not self.shared:   # MPI: each process keeps its own marks in step with the root's
                 self._advance_marks(t)
             return
-        self.sample_arrays(t, st.step + 1, in_id_order(rows))
+        S = parts[0]["points"].copy()
+        F = parts[0]["forces"].copy()
+        for p in parts[1:]:
+            S += p["points"]
+            F += p["forces"]
+        dim = self.dim
+        if probes:
+            row = {"time": t, "step": step}
+            for i, (name, _x) in enumerate(s["points"]):
+                sw = S[i, 0]
+                if sw < 0.1:   # no fluid within reach: dry
+                    row[name] = {"pressure": 0.0, "velocity": np.zeros(dim), "kernel_sum": sw}
+                else:
+                    row[name] = {"pressure": float(S[i, 1] / sw), "velocity": S[i, 2:2 + dim] / sw,
+                                 "kernel_sum": sw}
+            k = len(points)
+            for (name, _x), zs in zip(s["heights"], grids):
+                sw = S[k:k + len(zs), 0]
+                k += len(zs)
+                full = np.nonzero(sw >= 0.5)[0]
+                row[name] = float(zs[full[-1]]) if len(full) else float(self.zlo)
+            self.rows["probes"].append(row)
+        if forces:
+            row = {"time": t, "step": step}
+            for k, (name, _lo, _hi) in enumerate(s["bodies"]):
+                row[name] = F[k, :dim].copy()
+            self.rows["forces"].append(row)
+        self._advance_marks(t)
+
+    def _column_grid(self, c, every) -> np.ndarray:
+        """The heights searched over column c: from 2h below its lowest fluid row to 2h above
+        its highest (within the domain), every dp/4; none without fluid near it."""
+        zmin = min(float(e["zrange"][c, 0]) for e in every)
+        zmax = max(float(e["zrange"][c, 1]) for e in every)
+        if not zmin <= zmax:
+            return np.zeros(0)
+        return np.arange(max(self.zlo, zmin - 2 * self.h), min(self.zhi, zmax + 2 * self.h), 0.25 * self.dp)
+
+    def _column_points(self, c, zs) -> np.ndarray:
+        """The points (x, y, z) of column c at heights zs."""
+        out = np.zeros((len(zs), 3))
+        out[:, :self.dim - 1] = self._columns[c, :self.dim - 1]
+        out[:, self.dim - 1] = zs
+        return out
 
     def _advance_marks(self, t) -> None:
         s = self.spec
@@ -188,26 +299,6 @@ class ProbeSampler:
             self.next["probes"] = self._advance(self.next["probes"], s["interval"], t)
         if s["bodies"] and t >= self.next["forces"] - 1e-12:
             self.next["forces"] = self._advance(self.next["forces"], s["force_interval"], t)
-
-    def sample_arrays(self, t, step, a) -> None:
-        s = self.spec
-        fl = a["kind"] == 0
-        pos, vel, rho, p = a["position"][fl], a["velocity"][fl], a["density"][fl], a["pressure"][fl]
-        if (s["points"] or s["heights"]) and t >= self.next["probes"] - 1e-12:
-            row = {"time": t, "step": step}
-            for name, x in s["points"]:
-                row[name] = self.point(x, pos, vel, rho, p)
-            for name, x in s["heights"]:
-                row[name] = self.height(x, pos, rho)
-            self.rows["probes"].append(row)
-        if s["bodies"] and t >= self.next["forces"] - 1e-12:
-            row = {"time": t, "step": step}
-            bd = ~fl
-            for name, lo, hi in s["bodies"]:
-                row[name] = self.force(lo, hi, a["position"][bd], a["density"][bd], a["pressure"][bd],
-                                       pos, rho, p)
-            self.rows["forces"].append(row)
-        self._advance_marks(t)
 
     @staticmethod
     def _advance(nxt, interval, t):
@@ -223,63 +314,6 @@ class ProbeSampler:
                 return math.nextafter(t + 1e-12, math.inf)
             nxt += interval
         return nxt
-
-    # -- measurements
-    def _near(self, x, pos):
-        d = pos - x
-        r = np.sqrt((d * d).sum(1))
-        m = r < 2.0 * self.h
-        return m, r[m]
-
-    def point(self, x, pos, vel, rho, p):
-        m, r = self._near(x, pos)
-        w = kernel_w(r, self.h, self.aw, self.kernel) * self.mass_f / rho[m]
-        sw = w.sum()
-        if sw < 0.1:
-            return {"pressure": 0.0, "velocity": np.zeros(self.dim), "kernel_sum": sw}
-        return {"pressure": float((p[m] * w).sum() / sw), "velocity": (vel[m] * w[:, None]).sum(0) / sw,
-                "kernel_sum": sw}
-
-    def height(self, xh, pos, rho):
-        hor = pos[:, :-1]
-        m = np.all(np.abs(hor - xh) < 2.0 * self.h, axis=1)
-        if not m.any():
-            return float(self.zlo)
-        sub, vol = pos[m], self.mass_f / rho[m]
-        zs = np.arange(max(self.zlo, sub[:, -1].min() - 2 * self.h), min(self.zhi, sub[:, -1].max() + 2 * self.h),
-                       0.25 * self.dp)
-        pts = np.concatenate([np.broadcast_to(xh, (len(zs), self.dim - 1)), zs[:, None]], axis=1)
-        d = pts[:, None, :] - sub[None, :, :]
-        r = np.sqrt((d * d).sum(-1))
-        sw = (kernel_w(r, self.h, self.aw, self.kernel) * vol[None, :]).sum(1)
-        full = np.nonzero(sw >= 0.5)[0]
-        return float(zs[full[-1]]) if len(full) else float(self.zlo)
-
-    def force(self, lo, hi, bpos, brho, bp, fpos, frho, fp):
-        tol = 1e-9 + 1e-6 * self.dp
-        inb = np.all((bpos >= lo - tol) & (bpos <= hi + tol), axis=1)
-        F = np.zeros(self.dim)
-        if not inb.any():
-            return F
-        bpos, brho, bp = bpos[inb], brho[inb], bp[inb]
-        reach = 2.0 * self.h
-        nearf = np.all((fpos >= bpos.min(0) - reach) & (fpos <= bpos.max(0) + reach), axis=1)
-        fpos, frho, fp = fpos[nearf], frho[nearf], fp[nearf]
-        if not len(fpos):
-            return F
-        # the fluid near the body in a cell grid of 2h cells: each body particle visits the
-        # cells within reach (O(body x neighbours), not dense body x fluid pair matrices)
-        from .cells import axis_order, build_grid
-        from .probe_kernels import body_force_rows
-        f64 = np.float64
-        fpos = np.ascontiguousarray(fpos, f64)
-        grid, perm = build_grid(fpos, reach, 1, axis_order(self.dim))
-        rows = np.zeros((len(bpos), self.dim))
-        body_force_rows(np.ascontiguousarray(bpos, f64), np.ascontiguousarray(brho, f64),
-                        np.ascontiguousarray(bp, f64), fpos[perm], np.ascontiguousarray(frho[perm], f64),
-                        np.ascontiguousarray(fp[perm], f64), *grid.kernel_args(), self.prm,
-                        KERNELS.index(self.kernel), float(self.mass_f), float(self.mass_b), rows)
-        return rows.sum(0)
 
     # -- output
     def datasets(self) -> dict:

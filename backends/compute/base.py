@@ -163,6 +163,40 @@ class ComputeBackend:
         raise NotImplementedError
 
 
+    # -- [probes] / [forces] samples (sphgraph.probes): each rank's partial sums ---------
+    def probe_bounds(self, state, columns, boxes, band: float) -> dict:
+        """The first part of a sample that needs one (height columns; bodies on several
+        ranks), from this rank's own rows at the end of the step:
+
+        * ``"zrange"`` (c, 2): the lowest and highest vertical coordinate of the owned fluid
+          rows within 2h horizontally of each column ``columns`` (c, 2: x[, y]); (inf, -inf)
+          where there are none;
+        * ``"edge"`` (m, 5): x, y, z, rho and body index of the owned boundary rows inside
+          body box k (``boxes`` (b, 2, 3): lo, hi, inclusive) whose coordinate along the
+          split axis (``state.axis``) is within ``band`` of the ends of the owned rows' extent
+          there (``band`` 0: none); sorted by body, then position (`cpu_probes.edge_rows`).
+
+        The CPU implementation works on the host rows (`cpu_probes`); a device backend
+        overrides it with its own kernels. Only these few numbers leave the rank."""
+        from . import cpu_probes
+        self.sync_host(state)
+        return cpu_probes.host_bounds(state, columns, boxes, band)
+
+    def probe_sums(self, state, points, boxes, extra) -> dict:
+        """The partial sums of a sample over this rank's own fluid rows (end of the step),
+        which add up over the ranks to the sample (sphgraph.physics.probes):
+
+        * ``"points"`` (k, 5): at each point of ``points`` (k, 3) the sums of V W, V W P
+          and V W v (x, y, z) over the owned fluid rows within 2h;
+        * ``"forces"`` (b, 3): the pressure force of the owned fluid rows on the boundary rows
+          inside each body box (the owned ones, and ``extra`` (m, 5): other ranks' edge rows
+          from `probe_bounds`, counted for their body).
+
+        Each pair (fluid row, body row) is summed once, on the rank that owns the fluid row."""
+        from . import cpu_probes
+        self.sync_host(state)
+        return cpu_probes.host_sums(state, points, boxes, extra)
+
     # -- scene features (sphgraph.features), for a backend that lists them in scene_features --
     def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
         """mDBC (sphgraph.physics.mdbc): each boundary row's density (and, `noslip`, velocity)

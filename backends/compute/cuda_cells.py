@@ -113,8 +113,9 @@ class CudaCells:
         else:
             k.k_fill[CK.blocks(nk + 1), CK.BLOCK](start, nk + 1, 0)
         dv.sort_gen += 1
+        # "rows": the row set sorted (rows that come or go after it are not in the grid)
         dv.grid = {"origin": lo, "dims": dims, "axes": axes, "inv": inv, "reach": reach,
-                   "ncells": ncells, "size": c.cell_size}
+                   "ncells": ncells, "size": c.cell_size, "rows": (n, dv.nf)}
         # rows sorted along the cell rows just now (or trimming off until they are)
         dv.moved = 0.0 if (TRIM and axes[0] >= 0) else np.inf
         if n:

@@ -13,6 +13,7 @@ own module:
     cuda_force_dispatch  CudaForceDispatch: forces, reduce_forces
     cuda_step_dispatch   CudaStepDispatch: dt_local, integrate, check
     cuda_balance         CudaBalance: fluid_count, axis_extent, fluid_histogram, capacity
+    cuda_probes          CudaProbes: probe_bounds, probe_sums ([probes] / [forces] sums)
     cuda_halo            the ipc halo transport (device to device edges)
 
 The kernels themselves are behind cuda_kernels (and cuda_halo_kernels, cuda_shifting).
@@ -35,6 +36,7 @@ from .cuda_force_dispatch import CudaForceDispatch
 from .cuda_halo_dispatch import CudaHaloDispatch
 from .cuda_lanes import CudaLanes, per_thread_default_stream
 from .cuda_mdbc import CudaMdbc
+from .cuda_probes import CudaProbes
 from .cuda_memory import COUNTERS, dev_array
 from .cuda_rows import CudaRows
 from .cuda_shifting import CudaShifting
@@ -66,7 +68,7 @@ def _select_device():
 
 @register("compute", "numba-cuda")
 class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, CudaForceDispatch,
-                CudaStepDispatch, CudaBalance, CudaShifting, CudaMdbc, ComputeBackend):
+                CudaStepDispatch, CudaBalance, CudaShifting, CudaMdbc, CudaProbes, ComputeBackend):
     """The ComputeBackend on one GPU a rank; its methods come from the mixins above, one
     module each (see the module doc)."""
 

@@ -32,8 +32,8 @@ boundary rows on the neighbours' halos), `forces_images@s`
 (before `integrate`, from the velocities the forces saw) and `shift_apply` (after it),
 `motion@s` (moving bodies at the stage's end time), `damping` and `wrap` (periodic axes,
 last stage), `exclude` (end of step: the backend's check, rows out of bounds
-removed) and `probes` (end of step, a collective: the rows gathered on the root and
-sampled when a sample is due). Their place in a schedule that does not name them is
+removed) and `probes` (end of step, a collective: when a sample is due, each rank's
+partial sums of its own rows added on the root). Their place in a schedule that does not name them is
 `kinds.PLACEMENT`.
 
 The canonical order below is the step as a sequential program; dependencies
@@ -338,6 +338,6 @@ FEATURE_ACCESS = {
     K.WRAP: (("positions",), ("positions",), (), run_wrap),
     # the backend's end-of-step check; rows out of bounds removed (buffers for the new count)
     K.EXCLUDE: (("particles", "dt"), ("particles", "cells", "check"), (), run_exclude),
-    # a collective (every rank's rows to the root) at the steps a sample is due
+    # a collective (each rank's partial sums to the root) at the steps a sample is due
     K.PROBES: (("particles", "dt"), ("samples",), (), run_probes),
 }

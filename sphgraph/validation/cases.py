@@ -265,7 +265,7 @@ def run_hydrostatic(case, dp, prm, backend, precision, overrides):
             deep = z < zs - 2 * dp      # the surface rows have half a kernel: left out
             errs.append((a["pressure"][fl][deep] - exact[deep]) / (rho0 * G * H))
             vmax = max(vmax, float(np.sqrt((a["velocity"][fl] ** 2).sum(1)).max()) / math.sqrt(G * H))
-            sampler.sample_arrays(sim.time, sim.step_count, a)
+            sampler.sample(sim)
             down = scene.constants.gravity / np.linalg.norm(scene.constants.gravity)
             fy.append(float(sampler.rows["forces"][-1]["tank"] @ down))
     e = np.mean(errs, axis=0)
@@ -302,8 +302,7 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
     rho0 = scene.physics.rho0
     while sim.time < scene.end_time - 1e-12:
         sim.step()
-        if sampler.due(sim.time):
-            sampler.sample_arrays(sim.time, sim.step_count, _arrays(sim))
+        sampler.sample(sim)
     t, p = sampler.series("P1", "pressure")
     T, P = t * scale, p / (rho0 * G * H)
     data, header = load(case.reference["dataset"])
