@@ -194,17 +194,33 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
                 --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
               echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
-    # CPU under real MPI at 1.0 M on the 16 cores, 3 alternated rounds: 1 x 16 threads, -n 2 x 8 and
-    # -n 4 x 4 with each rank bound to its own cores (Hydra's -bind-to core:K), and -n 4 unbound
-    cpu-mpi-21) stage cpu_mpi_21 400 bash -c "B='python3 -m sphgraph bench examples/yeh_petroff.toml --dp 0.0045 \
-                --steps 8 --warmup 2 --json'; for r in 1 2 3; do NUMBA_NUM_THREADS=16 \$B; \
-                mpiexec -n 2 -bind-to core:8 env NUMBA_NUM_THREADS=8 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
-                mpiexec -n 4 -bind-to core:4 env NUMBA_NUM_THREADS=4 \$B --comm mpi | sed 's/^{/{\"bind\": 1, /'; \
+    # CPU under real MPI at 1.0 M on the 16 cores, 2 alternated rounds: 1 x 16 threads, -n 2 x 8 and
+    # -n 4 x 4, each rank bound to its own cores (Hydra's -bind-to core:K)
+    cpu-mpi-21) stage cpu_mpi_21 150 bash -c "B='python3 -m sphgraph bench examples/yeh_petroff.toml --dp 0.0045 \
+                --steps 8 --warmup 2 --json'; for r in 1 2; do NUMBA_NUM_THREADS=16 \$B; \
+                mpiexec -n 2 -bind-to core:8 env NUMBA_NUM_THREADS=8 \$B --comm mpi || \
+                mpiexec -n 2 env NUMBA_NUM_THREADS=8 \$B --comm mpi; \
+                mpiexec -n 4 -bind-to core:4 env NUMBA_NUM_THREADS=4 \$B --comm mpi || \
                 mpiexec -n 4 env NUMBA_NUM_THREADS=4 \$B --comm mpi; done | tee $OUT/cpu_mpi_21.jsonl" ;;
     # one-rank speed of the tree before the house refactors (39916ab, in .before/tree: see
     # benchmarks/house_ab.sh) against this tree: SPHERIC 2 at 4.4 M, 50 timed steps, alternated, 3 rounds
-    house-ab) stage house_ab 200 bash benchmarks/house_ab.sh .before/tree 3 "$OUT/house_ab.jsonl" \
+    house-ab) stage house_ab 110 bash benchmarks/house_ab.sh .before/tree 3 "$OUT/house_ab.jsonl" \
                 examples/spheric2.toml --dp 0.006 --steps 50 --warmup 3 --backend numba-cuda ;;
+    # the final tree at 4.4 M: mock 2 and 4 against single, 3 alternated rounds of 52 steps (the step-50
+    # balance check inside), the float64 match at 2 and 4 ranks
+    mock-21-4m) stage mock_21_4m 170 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 \
+                --warmup 3 --rounds 3 --transport auto --match --json "$OUT/mock_21_4m.json" ;;
+    # the breakdown of 2 MPS processes by the paper's timers, production and bulk-synchronous
+    mps-breakdown) export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
+              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
+              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+              stage mps_breakdown 70 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
+                --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
+                --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
+              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+    # a [forces] sample and a probe sample against a step at 1.0 M (Yeh & Petroff), float32, on the device
+    probes-gpu) stage probes_gpu 60 python3 benchmarks/force_sample_cost.py --backend numba-cuda --dp 0.0045 \
+                --steps 10 --repeat 10 --probes ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done
