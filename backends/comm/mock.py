@@ -4,12 +4,15 @@ Every rank has a virtual clock. The engine runs one runnable rank's next task at
 time. A task is runnable unless it is a receive whose message has not been *sent* yet,
 or a collective that not every rank has reached. Which runnable rank goes next is the
 `order`: "clock", the one with the smallest clock (ties: lowest rank); "eager", the
-rank that ran last while it can, then the smallest clock. The virtual times and every
-rank's results do not depend on the order (a task starts at its own rank's clock and
-its messages' arrivals); the wall clock does: on one GPU, "eager" issues a rank's
-tasks up to its next wait in one go, so its kernels (the interior forces above all)
-reach the device while the host issues the next rank's, where "clock" interleaves the
-ranks task by task and the device idles between the small tasks of a step's end. The
+rank that ran last while it can, then the smallest clock, and a task that waits for its
+rank's device to read a result (`Task.reads_device`: dt, the check) only when no rank
+has another task to run. The virtual times and every rank's results do not depend on the
+order (a task starts at its own rank's clock and its messages' arrivals); the wall clock
+does: on one GPU, "eager" issues a rank's tasks up to its next wait in one go, so its
+kernels (the interior forces above all) reach the device while the host issues the next
+rank's, and every rank's halo forces and integration are queued before the host first
+waits for the device, where "clock" interleaves the ranks task by task and the device
+idles while the host issues each rank's small tasks between its waits. The
 random draws of `delay`, `reorder`, `duplicate` and `loss` follow the order in which
 messages are posted, so "auto" (the default) is "clock" with any of those set and
 "eager" otherwise. Then:
@@ -376,7 +379,7 @@ class Engine:
         while True:
             if self.eager and last is not None and pc[last] < len(programs[last]):
                 t = programs[last][pc[last]]    # the rank that ran last goes on while it can
-                if not t.collective and self._missing(last, t) is None:
+                if not t.collective and not t.reads_device and self._missing(last, t) is None:
                     run_task(last, t, record)
                     pc[last] += 1
                     continue
@@ -399,10 +402,12 @@ class Engine:
                 if lost:
                     raise CommError(lost)
                 raise DeadlockError(self._deadlock_report(ranks, pending, heads))
-            if self.eager and last in runnable:
-                r = last
+            if self.eager:
+                free = [q for q in runnable if not heads[q].reads_device]
+                pool = free or runnable       # device reads once nothing else can be issued
+                r = last = last if last in pool else min(pool, key=lambda q: (self.clock[q], q))
             else:
-                r = last = min(runnable, key=lambda q: (self.clock[q], q))
+                r = min(runnable, key=lambda q: (self.clock[q], q))
             run_task(r, heads[r], record)
             pc[r] += 1
 

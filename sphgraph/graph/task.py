@@ -52,6 +52,9 @@ class Task:
     # A comm that holds every rank (mock) reduces the values first, and fn's call returns
     # the result without waiting for the other ranks
     reduce: tuple | None = None
+    # the body waits for the rank's device work to read a result on the host (dt, the check):
+    # a comm that runs several ranks in one thread issues the other ranks' work first
+    reads_device: bool = False
     meta: dict = field(default_factory=dict)
 
     # label and name are read for every task a rank runs (the engine, the records, the

@@ -155,7 +155,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
                     meta={"part": f"halo_{side}"})
     if kind is K.DT_LOCAL:
         return Task(kind, None, reads=("particles", "forces@1"), writes=("dt_local",), lane=lane,
-                    fn=run_dt_local)
+                    fn=run_dt_local, reads_device=True)
     if kind is K.DT_ALLREDUCE:
         return Task(kind, None, reads=("dt_local",), writes=("dt",), lane=lane,
                     fn=run_dt_allreduce, collective=True, reduce=("min", _dt_value))
@@ -171,7 +171,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
         at = (lambda names: tuple(x.replace("@s", f"@{s}") for x in names))
         return Task(kind, s if kind.per_stage else None, reads=at(reads), writes=at(writes),
                     accumulates=at(accumulates), lane=lane, fn=fn, collective=kind is K.PROBES,
-                    meta={"part": _SHIFT_PART.get(kind)})
+                    reads_device=kind is K.EXCLUDE, meta={"part": _SHIFT_PART.get(kind)})
     raise ValueError(kind)
 
 
