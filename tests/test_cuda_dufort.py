@@ -96,3 +96,37 @@ def test_gpu_dufort_frankel_matches_cpu():
                      "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
     for r in out:
         check_equal(r)
+
+
+def test_with_sum_adds_k_a_and_leaves_the_production_sums():
+    """cuda_variants.with_sum on cuda_forces._fv_pair, run by numba on the CPU: the seven
+    production sums as `_fv_pair` gives them, and K_a grown by fluid_pair_df's k_ab (a fluid b;
+    0 for a boundary b); code without the production shape is refused."""
+    import numpy as np
+
+    from sphgraph.backends.compute import cuda_forces as CF
+    from sphgraph.backends.compute.cuda_variants import with_sum
+    from sphgraph.config import O_DDT, O_KERNEL, P_MASS_F, P_SUPPORT2, PhysicsConfig, derive
+    from sphgraph.physics.interact import fluid_pair_df
+
+    c = derive(PhysicsConfig(diffusion="fourtakas", diffusion_time="dufort-frankel"), dp=0.05, dim=3, hswl=0.8)
+    prm, kid, ddtk = c.prm, int(c.opt[O_KERNEL]), int(c.opt[O_DDT])
+    pair_df = with_sum(CF._fv_pair, fluid_pair_df)
+    vel4 = np.array([0.1, -0.2, 0.05, 1001.0])
+    sums = (0.5, -0.25, 0.125, 3.0, 0.75, 0, 0.01)
+    for b_bound in (False, True):
+        a = (0.01, 0.02, 0.0, 1500.0, vel4, 0, b_bound, 0.04, 0.05, 0.03, 2000.0, 0.2, 0.1, 0.0, 1000.5,
+             1.0 / 1000.5, prm[P_MASS_F], prm[P_SUPPORT2], prm, kid, ddtk, 0)
+        plain = CF._fv_pair(*a, *sums)
+        got = pair_df(*a, *sums, 2.0)
+        d = (0.04 - 0.01, 0.05 - 0.02, 0.03 - 0.0)
+        k_ab = fluid_pair_df(*d, d[0] * d[0] + d[1] * d[1] + d[2] * d[2], 0.2 - 0.1, 0.1 + 0.2, 0.0 - 0.05, 1000.5,
+                             1.0 / 1000.5, 1001.0, 2000.0, 1500.0, prm[P_MASS_F], b_bound, prm, kid, ddtk, 0)[-1]
+        assert got[:7] == plain, (got, plain)
+        assert got[7] == 2.0 + k_ab
+        assert (k_ab == 0.0) == b_bound, k_ab
+
+    def other(axx, dd, cc):
+        return axx, dd, cc
+    with pytest.raises(ValueError, match="shape of the production force code"):
+        with_sum(other, fluid_pair_df)
