@@ -5,94 +5,79 @@ As tests/test_cuda_backend.py: the kernels run in numba's CUDA simulator in a su
 (`NUMBA_ENABLE_CUDASIM=1`, float64, 239-387 particles, 2-3 steps); the `gpu` test runs on a
 real GPU. The scenes take delta 0.3 and an Euler step every 40 (so every step here is a
 DuFort-Frankel one): the two schemes then differ by ~1e-2 kg/m^3 in 3 steps (the
-`leapfrog` entry), far above the tolerance (Molteni: ~2e-4).
+`gap` entry), far above the tolerance (Molteni: ~2e-4).
 """
 from __future__ import annotations
 
-import textwrap
-
 import pytest
-from cudasim_helpers import check_equal, gpu, run_script
 
-SCRIPT = textwrap.dedent('''
-    import json
-    import numpy as np
-    from sphgraph.scene import Scene
-    from sphgraph.solver import Simulation
+import cudasim_helpers as H
+from cudasim_helpers import check_compared, compare_in_subprocess, gpu
 
-    def scene(dim, diffusion="fourtakas", diffusion_time="dufort-frankel"):
-        if dim == 2:
-            d = {"format": 1, "dim": 2, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
-                 "domain": {"min": [-0.2, -0.2], "max": [1.7, 1.5]},
-                 "physics": {},
-                 "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [0.5, 0.8]}],
-                 "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.5, 1.2], "layers": 1}]}
-        else:
-            d = {"format": 1, "dim": 3, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
-                 "domain": {"min": [-0.2, -0.2, -0.2], "max": [0.6, 0.5, 0.6]},
-                 "physics": {"cell_size": "h", "coefh": 1.1547005383792515},
-                 "fluid": [{"type": "box", "min": [0.0, 0.0, 0.0], "max": [0.2, 0.3, 0.25]}],
-                 "boundary": [{"type": "tank", "min": [0.0, 0.0, 0.0], "max": [0.4, 0.3, 0.4], "layers": 1}]}
-        d["physics"].update({"integrator": "verlet", "verlet_euler_every": 40, "delta": 0.3,
-                             "diffusion": diffusion, "diffusion_time": diffusion_time})
-        return Scene.from_dict(d, source="<test>")
 
-    def run(sc, backend, steps, ranks=1, transport="auto", precision="float64"):
-        kw = {} if ranks == 1 else {"comm": "mock", "ranks": ranks, "comm_options": {"halo_transport": transport}}
-        sim = Simulation(sc, backend=backend, precision=precision, **kw)
-        for _ in range(steps):
-            sim.step()
-        f = sim.frame_arrays()
-        i = np.argsort(f["id"])
-        return {k: f[k][i] for k in ("id", "position", "density")}, sim.time
+def scene(dim, diffusion="fourtakas", diffusion_time="dufort-frankel"):
+    return H.tank(dim, {"integrator": "verlet", "verlet_euler_every": 40, "delta": 0.3, "diffusion": diffusion,
+                        "diffusion_time": diffusion_time})
 
-    def diff(sc, a, b):
-        ext = float(np.max(sc.domain_max - sc.domain_min))
-        return {"n": int(len(a[0]["id"])), "ids": bool(np.array_equal(a[0]["id"], b[0]["id"])),
-                "pos": float(np.abs(a[0]["position"] - b[0]["position"]).max() / ext),
-                "rho": float(np.abs(a[0]["density"] - b[0]["density"]).max()),
-                "time": [a[1], b[1]]}
 
-    def compare(dim, steps, diffusion="fourtakas", ranks=1, transport="auto", precision="float64"):
-        """numba-cuda on `ranks` (mock) against numba-cpu on one rank, and numba-cpu's
-        leapfrog against its DuFort-Frankel step (the gap the tolerance must be far below)."""
-        sc = scene(dim, diffusion)
-        cpu = run(sc, "numba-cpu", steps)
-        out = diff(sc, cpu, run(sc, "numba-cuda", steps, ranks, transport, precision))
-        out["leapfrog"] = diff(sc, cpu, run(scene(dim, diffusion, "leapfrog"), "numba-cpu", steps))["rho"]
-        if ranks > 1:      # numba-cpu on the same mock ranks
-            out["cpu_ranks"] = diff(sc, cpu, run(sc, "numba-cpu", steps, ranks, "staged"))
-        return out
-''')
+def compare(dim, steps, diffusion="fourtakas", **run):
+    """cudasim_helpers.compare; its "gap": numba-cpu's leapfrog against its DuFort-Frankel step."""
+    return H.compare(scene, dim, steps, {"diffusion_time": "leapfrog"}, diffusion=diffusion, **run)
 
 
 def test_simulator_dufort_frankel_matches_cpu_one_rank():
     """2D with the Fourtakas term (DBC neighbours cancel a row's diffusion and its K_a), 3D
     with fourtakas-full (boundary neighbours skipped): one rank, the force kernel writes the
     reduced K_a itself. Measured: densities 2e-13 to 5e-13 kg/m^3 apart, positions 0."""
-    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 3), compare(3, 2, 'fourtakas-full')]))", sim=True)
-    for r in out:
-        check_equal(r)
-        assert r["leapfrog"] > 1e-4, r
+    check_compared(compare_in_subprocess(__file__, "[compare(2, 3), compare(3, 2, 'fourtakas-full')]", sim=True),
+                   gap=1e-4)
 
 
 def test_simulator_dufort_frankel_matches_cpu_two_mock_ranks():
     """2 mock ranks: ipc halos (the default: k_halo_fv_df, k_reduce_ranged_ddk) and staged
     halos (host-binned: k_forces_df, k_reduce_ddk), against one CPU rank; numba-cpu on the
     same 2 ranks too. Measured: 3.4e-13 kg/m^3, 4e-18 of the domain."""
-    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 3, ranks=2), compare(2, 3, 'molteni', ranks=2, "
-                     "transport='staged')]))", sim=True)
-    for r in out:
-        check_equal(r)
-        check_equal(r["cpu_ranks"])
-        assert r["leapfrog"] > 1e-4, r
+    check_compared(compare_in_subprocess(__file__, "[compare(2, 3, ranks=2), compare(2, 3, 'molteni', ranks=2, "
+                                         "transport='staged')]", sim=True), gap=1e-4)
 
 
 @pytest.mark.gpu
 @gpu
 def test_gpu_dufort_frankel_matches_cpu():
     """On a real GPU, float64: one rank and 2 mock ranks (ipc) against one CPU rank."""
-    out = run_script(SCRIPT + "\nprint(json.dumps([compare(2, 5), compare(3, 5, 'fourtakas-full'), "
-                     "compare(2, 5, ranks=2)]))", sim=False, timeout=600)
-    for r in out:
-        check_equal(r)
+    check_compared(compare_in_subprocess(__file__, "[compare(2, 5), compare(3, 5, 'fourtakas-full'), "
+                                         "compare(2, 5, ranks=2)]", sim=False, timeout=600))
+
+
+def test_with_sum_adds_k_a_and_leaves_the_production_sums():
+    """cuda_variants.with_sum on cuda_forces._fv_pair, run by numba on the CPU: the seven
+    production sums as `_fv_pair` gives them, and K_a grown by fluid_pair_df's k_ab (a fluid b;
+    0 for a boundary b); code without the production shape is refused."""
+    import numpy as np
+
+    from sphgraph.backends.compute import cuda_forces as CF
+    from sphgraph.backends.compute.cuda_variants import with_sum
+    from sphgraph.config import O_DDT, O_KERNEL, P_MASS_F, P_SUPPORT2, PhysicsConfig, derive
+    from sphgraph.physics.interact import fluid_pair_df
+
+    c = derive(PhysicsConfig(diffusion="fourtakas", diffusion_time="dufort-frankel"), dp=0.05, dim=3, hswl=0.8)
+    prm, kid, ddtk = c.prm, int(c.opt[O_KERNEL]), int(c.opt[O_DDT])
+    pair_df = with_sum(CF._fv_pair, fluid_pair_df)
+    vel4 = np.array([0.1, -0.2, 0.05, 1001.0])
+    sums = (0.5, -0.25, 0.125, 3.0, 0.75, 0, 0.01)
+    for b_bound in (False, True):
+        a = (0.01, 0.02, 0.0, 1500.0, vel4, 0, b_bound, 0.04, 0.05, 0.03, 2000.0, 0.2, 0.1, 0.0, 1000.5,
+             1.0 / 1000.5, prm[P_MASS_F], prm[P_SUPPORT2], prm, kid, ddtk, 0)
+        plain = CF._fv_pair(*a, *sums)
+        got = pair_df(*a, *sums, 2.0)
+        d = (0.04 - 0.01, 0.05 - 0.02, 0.03 - 0.0)
+        k_ab = fluid_pair_df(*d, d[0] * d[0] + d[1] * d[1] + d[2] * d[2], 0.2 - 0.1, 0.1 + 0.2, 0.0 - 0.05, 1000.5,
+                             1.0 / 1000.5, 1001.0, 2000.0, 1500.0, prm[P_MASS_F], b_bound, prm, kid, ddtk, 0)[-1]
+        assert got[:7] == plain, (got, plain)
+        assert got[7] == 2.0 + k_ab
+        assert (k_ab == 0.0) == b_bound, k_ab
+
+    def other(axx, dd, cc):
+        return axx, dd, cc
+    with pytest.raises(ValueError, match="shape of the production force code"):
+        with_sum(other, fluid_pair_df)

@@ -18,6 +18,13 @@ goes to an 'A'-layout overload), so in a process shared with other tests -- pyte
 hands files to workers in no fixed order -- the machine code a fastmath kernel runs, and
 its last bits, depended on what the worker had compiled before.
 
+The interpreters share a numba cache of this session's own, empty at the first example (the
+first compiles the kernels, about 15 s more; the rest load them), as on a fresh checkout. The
+machine code of a fastmath kernel also depends on what its process compiled before it (numba
+numbers the blocks it inlines from counters of the process, and LLVM reassociates in the order
+they are emitted): with the developer's cache warm for every module but an edited
+cpu_kernels.py -- one comment added -- the four 3D scenes gave other digests.
+
 That interpreter compiles for a generic x86-64 (NUMBA_CPU_NAME=generic: no FMA contraction, no
 AVX) and runs numpy's baseline loops (NPY_DISABLE_CPU_FEATURES lists the dispatch targets this
 machine has): natively compiled, the fastmath kernels' reductions, and numpy's SIMD sin/cos/exp
@@ -90,10 +97,16 @@ def test_every_example_has_a_digest():
     assert sorted(p.stem for p in EXAMPLES.glob("*.toml")) == sorted(DIGESTS)
 
 
+@pytest.fixture(scope="module")
+def digest_env(tmp_path_factory) -> dict:
+    """portable_env with a numba cache of this module's run (see the module docstring)."""
+    return dict(portable_env(), NUMBA_CACHE_DIR=str(tmp_path_factory.mktemp("numba_cache")))
+
+
 @pytest.mark.parametrize("name", sorted(DIGESTS))
-def test_example_after_50_steps_matches_its_digest(name):
+def test_example_after_50_steps_matches_its_digest(name, digest_env):
     r = subprocess.run([sys.executable, __file__, name], capture_output=True, text=True, timeout=600,
-                       env=portable_env())
+                       env=digest_env)
     assert r.returncode == 0, r.stderr[-2000:]
     n, d = r.stdout.split()[-2:]
     assert (int(n), d) == DIGESTS[name]
