@@ -208,7 +208,7 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 examples/spheric2.toml --dp 0.006 --steps 50 --warmup 3 --backend numba-cuda ;;
     # the final tree at 4.4 M: mock 2 and 4 against single, 3 alternated rounds of 52 steps (the step-50
     # balance check inside), the float64 match at 2 and 4 ranks
-    mock-21-4m) stage mock_21_4m 170 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 \
+    mock-21-4m) stage mock_21_4m 140 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 \
                 --warmup 3 --rounds 3 --transport auto --match --json "$OUT/mock_21_4m.json" ;;
     # the breakdown of 2 MPS processes by the paper's timers, production and bulk-synchronous
     mps-breakdown) export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
@@ -221,6 +221,11 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # a [forces] sample and a probe sample against a step at 1.0 M (Yeh & Petroff), float32, on the device
     probes-gpu) stage probes_gpu 60 python3 benchmarks/force_sample_cost.py --backend numba-cuda --dp 0.0045 \
                 --steps 10 --repeat 10 --probes ;;
+    # the GPU tests of the force variants made from the default kernels (DuFort-Frankel, Riemann, mDBC)
+    # and of the probe sums on the device
+    tests-variants) stage tests_variants 110 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
+                tests/test_cuda_dufort.py tests/test_cuda_riemann.py tests/test_cuda_mdbc.py
+              stage tests_probes 45 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_probe_sums.py ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done
