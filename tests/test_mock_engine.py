@@ -293,6 +293,32 @@ def test_eager_order_gives_the_clock_orders_times_and_rows():
         MockComm(ranks=2, order="fifo")
 
 
+def test_eager_order_reads_the_device_after_every_rank_issued_its_work():
+    """Under "eager" a task that waits for its rank's device (dt_local, exclude: Task.reads_device)
+    runs only once no rank has another task to issue: in every step, each rank's halo forces of
+    stage 1 ran before the first dt_local, and each rank's integrate of the last stage before the
+    first exclude (the order /timing's rows were recorded in). Under "clock" that is not so."""
+    def first_read_after_all(cols, read, before):
+        ok = []
+        for step in np.unique(cols["step"]):
+            seq = [(r, t) for r, t, s in zip(cols["rank"], cols["task"], cols["step"]) if s == step]
+            first = next(i for i, (_, t) in enumerate(seq) if t == read)
+            last = max(i for i, (_, t) in enumerate(seq) if t in before)
+            ok.append(last < first)
+        return all(ok)
+    res = {}
+    for order in ("eager", "clock"):
+        sim = Simulation(small(), comm="mock", ranks=3, comm_options={"order": order})
+        for _ in range(4):
+            sim.step()
+        cols = sim.scheduler.times.columns()
+        assert "exclude" in set(cols["task"])
+        res[order] = (first_read_after_all(cols, "dt_local", {"forces_halo_1@1", "forces_halo_2@1"}),
+                      first_read_after_all(cols, "exclude", {f"integrate@{sim.stages}"}))
+    assert res["eager"] == (True, True)
+    assert res["clock"] != (True, True)
+
+
 def test_auto_timing_without_a_device_clock_is_the_model():
     _, auto = timing_of(steps=3)
     _, model = timing_of(steps=3, timing="model")
