@@ -84,13 +84,16 @@ def tank(dim, physics, layers=1, fluid_3d_top=(0.2, 0.3, 0.25), initial=None):
     return Scene.from_dict(d, source="<test>")
 
 
-def run(sc, backend, steps, ranks=1, transport="auto", precision="float64"):
-    """`steps` steps of the scene `sc` on `backend` (`ranks` mock ranks, halos by `transport`):
-    the rows in id order (id, position, velocity, density) and the time reached."""
+def run(sc, backend, steps, ranks=1, transport="auto", precision="float64", schedule=None):
+    """`steps` steps of the scene `sc` on `backend` (a name or a ComputeBackend class; `ranks`
+    mock ranks, halos by `transport`, the `schedule` if given): the rows in id order (id,
+    position, velocity, density) and the time reached."""
     import numpy as np
 
     from sphgraph.solver import Simulation
     kw = {} if ranks == 1 else {"comm": "mock", "ranks": ranks, "comm_options": {"halo_transport": transport}}
+    if schedule is not None:
+        kw["schedule"] = schedule
     sim = Simulation(sc, backend=backend, precision=precision, **kw)
     for _ in range(steps):
         sim.step()

@@ -34,12 +34,6 @@ def test_simulator_mdbc_matches_cpu(dim, boundary, integrator):
                    gap=1e-2)
 
 
-def test_mdbc_on_several_ranks_is_refused_on_numba_cuda():
-    from sphgraph import InputError, Simulation
-    with pytest.raises(InputError, match="physics.boundary.*one rank.*got 2 ranks"):
-        Simulation(scene(2), backend="numba-cuda", comm="mock", ranks=2)
-
-
 @pytest.mark.gpu
 @gpu
 def test_gpu_mdbc_matches_cpu():

@@ -271,6 +271,7 @@ def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
         A["start"], c0 * n0 * n1, nch, int(g["ncells"]), A["pos4"], A["vel4"], A["kind"], cap,
         d["start"], d["pos4"], d["vel4"], d["kind"], A["edge_over"])
     e["event"].record(s if s else 0)
+    dv.mdbc_edges[direction] = ("slot", slot, c0 * n0 * n1, nch, cap)     # mdbc_edge: the same planes again
     state.bytes_sent += nb
     origin = np.array(g["origin"], np.float64)
     origin[2] += c0 * g["size"]

@@ -40,6 +40,7 @@ class CudaHaloDispatch:
         grid, perm = build_grid(np.asarray(halo.pos, np.float64), c.cell_size, reach, state.axes)
         halo.pos, halo.vel = halo.pos[perm], halo.vel[perm]
         halo.rho, halo.kind = halo.rho[perm], halo.kind[perm]
+        halo.order = perm            # mdbc_halo: the sender's edge row of each binned row
         m, dim = halo.n, dv.dim
         names = ["r" + ax for ax in VEC[:dim]] + ["v" + ax for ax in VEC[:dim]] + ["rho"]
         lay, nb = layout([("start", grid.start.dtype, grid.start.shape[0]), ("kind", np.int8, m)] +

@@ -103,6 +103,9 @@ class DeviceState:
         self.pinned_band = None
         self.gen_pending = []                       # generation numbers to check (other processes)
         self.gen_pinned = []                        # their pinned host copies
+        # mDBC on several ranks (cuda_mdbc)
+        self.mdbc_edges = {}                        # direction -> the last edge's boundary rows (staged or slot)
+        self.bound_arrived = 0                      # boundary rows appended since the upload (ghost table)
 
     # the arrays the sort and the migration read by name (prepare / make_views make them)
     px = property(lambda self: self.arrays["px"])

@@ -179,6 +179,7 @@ class CudaRows:
         dv.moved = np.inf          # rows moved in the arrays: no trimming until the next sort
         mf = int(np.count_nonzero(r.kind == 0))
         dv.nf += mf
+        dv.bound_arrived += m - mf
         CH.grow_bounds(dv, mf, m - mf)
         dv.fit_fluid()
         if dv.box is not None:      # the next grid must hold the new rows
@@ -199,6 +200,8 @@ class CudaRows:
         dv = state.extra.get("dev")
         g = None if dv is None else dv.grid
         if g is None or not dv.n or int(g["axes"][2]) != domain.axis or not _plain_slabs(domain):
+            if dv is not None:
+                dv.mdbc_edges[direction] = ("host",)
             self.sync_host(state)
             return domain.edge(state, direction)
         if slot is not None:
@@ -228,6 +231,7 @@ class CudaRows:
         m0, m1 = max(b0 - a0, 0), max(b1 - a1, 0)
         m = m0 + m1
         pos, vel, rho, kind = [], [], [], []
+        dv.mdbc_edges[direction] = ("rows", a1, np.zeros(0, bool))   # mdbc_edge: the boundary rows sent
         nb = 0
         if m:   # both ranges packed by one launch, one copy to the pinned staging buffer
             lay, nb = layout([("pos", np.float64, m * dim), ("v4", dv.dtype, 4 * m), ("kind", np.int8, m)])
@@ -243,6 +247,7 @@ class CudaRows:
             v4 = h["v4"].reshape(m, 4)
             x = P[:, domain.axis]
             sel = x < thr if direction < 0 else x >= thr
+            dv.mdbc_edges[direction] = ("rows", a1, sel[m0:].copy())
             pos.append(P[sel])            # boolean indexing copies: nothing aliases the staging buffer
             vel.append(v4[sel, :dim])
             rho.append(v4[sel, 3])

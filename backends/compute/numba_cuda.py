@@ -74,7 +74,7 @@ class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, Cu
 
     default_precision = "float32"
     device_resident = True
-    scene_features = frozenset({"shifting", "mdbc", "riemann", "diffusion_time"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time"})
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
