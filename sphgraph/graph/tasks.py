@@ -138,7 +138,9 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
         return Task(kind, s, writes=(f"halo_{side}",), lane=lane, fn=run_recv_halo,
                     recvs=(Message(o, tag_edges(s, -d)),), meta={"side": side})
     if kind is K.SEND_MDBC:
-        return Task(kind, s, reads=("rows", "positions", "velocities", "densities"), lane=lane,
+        # the values of the rows of the edge this stage's send_edges made (the ipc transport
+        # writes them into that edge's buffer)
+        return Task(kind, s, reads=("rows", "positions", "velocities", "densities", f"edges@{s}"), lane=lane,
                     fn=run_send_mdbc, sends=tuple(Message(o, tag_mdbc(s, d)) for d, o in nb), meta=dirs)
     if kind in (K.RECV_MDBC_1, K.RECV_MDBC_2):
         side = 1 if kind is K.RECV_MDBC_1 else 2
