@@ -94,14 +94,17 @@ def check(r):
 
 
 @pytest.mark.parametrize("ranks,transport,boundary,integrator,off", [
-    (2, "staged", "mdbc-noslip", "verlet", True), (3, "staged", "mdbc-noslip", "verlet", False),
+    # the runs with a part left out show that this check can fail; each costs a simulator run
+    # more, so they run on one transport (the equality itself fails far past its tolerance
+    # without either part: 6e-9 of the domain, 2.4e-6 m/s)
+    (2, "staged", "mdbc-noslip", "verlet", False), (3, "staged", "mdbc-noslip", "verlet", False),
     (2, "ipc", "mdbc-noslip", "verlet", True), (3, "ipc", "mdbc-noslip", "verlet", False),
     (2, "ipc", "mdbc", "symplectic", False)])
 def test_simulator_mock_ranks_match_cpu(ranks, transport, boundary, integrator, off):
     """Measured: positions 4e-18 of the domain apart, velocities 1e-14 m/s, densities 3e-12
     kg/m^3; without the exchange 6e-9 of the domain and 5e-5 kg/m^3, without the halos in the
-    ghost sums velocities 2.4e-6 m/s (positions 8e-11 of the domain; 2 ranks, both
-    transports)."""
+    ghost sums velocities 2.4e-6 m/s (positions 8e-11 of the domain; 2 ranks, measured on both
+    transports, checked on ipc)."""
     check(compare_in_subprocess(__file__, f"compare({ranks}, {transport!r}, 3, {boundary!r}, {integrator!r}, {off})",
                                 sim=True, timeout=900))
 
