@@ -10,7 +10,7 @@ read: no race).
 
 On several (mock) ranks a ghost near a cut also sums the halos' fluid rows: the sums of each
 boundary row go through a device scratch (`ACC` numbers a row) from the owned rows
-(`k_mdbc_own`) over each halo (`k_mdbc_src`: a staged halo's uploaded arrays and host grid,
+(`k_mdbc_src` with `first`) over each halo (`k_mdbc_src`: a staged halo's uploaded arrays and host grid,
 or an ipc halo's records and planes in the sender's edge slot) to the row's values
 (`k_mdbc_value`). send_mdbc / recv_mdbc then bring the new values of the edge's boundary
 rows to the neighbours' halos, which hold those from before the sender's mdbc: staged, read
@@ -23,7 +23,7 @@ import math  # noqa: F401  (the cloned device functions use it)
 import types
 
 import numpy as np
-from numba import cuda
+from numba import cuda, njit
 
 from sphgraph.cells import cell_window
 from sphgraph.config import O_KERNEL, P_MASS_F, P_SUPPORT2
@@ -93,77 +93,46 @@ def k_mdbc(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, start, o0, o1,
 # -- several ranks: the sums of a ghost span the owned rows and the halos --------------
 # Per boundary row, ACC numbers in `acc` hold the ghost's sums between the kernels: the
 # matrix A (16), the right-hand side b (4), the velocity sum vs (3) and the Shepard weight
-# sw (1). k_mdbc_own starts them from the owned fluid (the same loop as k_mdbc), each
-# k_mdbc_src adds one halo's fluid rows, k_mdbc_value turns them into the row's values.
+# sw (1). k_mdbc_src sums one source's fluid rows: first the owned ones (`first`: from zero,
+# reference 0, the fluid half of the rank's grid), then each halo's; k_mdbc_value turns the
+# sums into the row's values.
 ACC = 24
 
 
-def k_mdbc_own(px, py, pz, ghost, ids, vx, vy, vz, rho, i0, n, start, o0, o1, o2, inv_size,
-               n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel_id, acc):
-    """k_mdbc's sums over the owned fluid rows of boundary rows i0..n-1, stored in acc."""
-    i = cuda.grid(1) + i0
-    if i >= n:
-        return
-    A = cuda.local.array((4, 4), RT)
-    b = cuda.local.array(4, RT)
-    vs = cuda.local.array(3, RT)
-    for r in range(4):
-        b[r] = 0.0
-        for c in range(4):
-            A[r, c] = 0.0
-    for r in range(3):
-        vs[r] = 0.0
-    support2 = prm[P_SUPPORT2]
-    m = prm[P_MASS_F]
-    g = 3 * ids[i]
-    gx = ghost[g]
-    gy = ghost[g + 1]
-    gz = ghost[g + 2] if dim == 3 else 0.0
-    lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(gx, gy, gz, o0, o1, o2, inv_size, n0, n1, n2,
-                                                      a0, a1, a2, reach)
-    sw = 0.0 * rho[i]
-    if not empty:
-        for c2 in range(lo2, hi2 + 1):
-            for c1 in range(lo1, hi1 + 1):
-                row = (c2 * n1 + c1) * n0
-                for j in range(start[row + lo0], start[row + hi0 + 1]):
-                    dx0 = px[j] - gx
-                    dx1 = py[j] - gy
-                    dx2 = (pz[j] - gz) if dim == 3 else 0.0
-                    r2 = dx0 * dx0 + dx1 * dx1 + dx2 * dx2
-                    if r2 >= support2:
-                        continue
-                    sw += ghost_add(A, b, vs, dx0, dx1, dx2, r2, rho[j], vx[j], vy[j],
-                                    vz[j] if dim == 3 else 0.0, m, dim, prm, kernel_id)
-    k = (i - i0) * 24
-    for r in range(4):
-        for c in range(4):
-            acc[k + 4 * r + c] = A[r, c]
-        acc[k + 16 + r] = b[r]
-    for r in range(3):
-        acc[k + 20 + r] = vs[r]
-    acc[k + 23] = sw
-
-
-def k_mdbc_src(ghost, ids, i0, n, ref0, ref1, ref2, sx, sy, sz, svx, svy, svz, srho, skind, start, o0, o1, o2,
-               inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel_id, acc):
-    """One halo's fluid rows (positions relative to ref, as the halo holds them; cells
-    start[0 .. n0 n1 n2]; rows of other kinds skipped) added to the sums in acc of
-    boundary rows i0..n-1."""
-    i = cuda.grid(1) + i0
-    if i >= n:
-        return
-    A = cuda.local.array((4, 4), RT)
-    b = cuda.local.array(4, RT)
-    vs = cuda.local.array(3, RT)
-    k = (i - i0) * 24
+@njit(inline="always")
+def _acc_load(acc, k, A, b, vs):
+    """The sums of one boundary row from acc[k : k + ACC] into A, b, vs; returns sw."""
     for r in range(4):
         for c in range(4):
             A[r, c] = acc[k + 4 * r + c]
         b[r] = acc[k + 16 + r]
     for r in range(3):
         vs[r] = acc[k + 20 + r]
-    sw = acc[k + 23]
+    return acc[k + 23]
+
+
+def k_mdbc_src(ghost, ids, i0, n, ref0, ref1, ref2, sx, sy, sz, svx, svy, svz, srho, skind, start, o0, o1, o2,
+               inv_size, n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel_id, acc, first):
+    """One source's fluid rows (positions relative to ref, as the source holds them; cells
+    start[0 .. n0 n1 n2]; rows of other kinds skipped) added to the sums in acc of
+    boundary rows i0..n-1, or, with `first`, stored there as their first sums."""
+    i = cuda.grid(1) + i0
+    if i >= n:
+        return
+    A = cuda.local.array((4, 4), RT)
+    b = cuda.local.array(4, RT)
+    vs = cuda.local.array(3, RT)
+    k = (i - i0) * 24
+    if first:
+        for r in range(4):
+            b[r] = 0.0
+            for c in range(4):
+                A[r, c] = 0.0
+        for r in range(3):
+            vs[r] = 0.0
+        sw = 0.0
+    else:
+        sw = _acc_load(acc, k, A, b, vs)
     support2 = prm[P_SUPPORT2]
     m = prm[P_MASS_F]
     g = 3 * ids[i]
@@ -207,13 +176,7 @@ def k_mdbc_value(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, prm, dim
     b2 = cuda.local.array(4, RT)
     vs = cuda.local.array(3, RT)
     k = (i - i0) * 24
-    for r in range(4):
-        for c in range(4):
-            A[r, c] = acc[k + 4 * r + c]
-        b[r] = acc[k + 16 + r]
-    for r in range(3):
-        vs[r] = acc[k + 20 + r]
-    sw = acc[k + 23] + 0.0 * rho[i]
+    sw = _acc_load(acc, k, A, b, vs) + 0.0 * rho[i]
     g = 3 * ids[i]
     gx = ghost[g]
     gy = ghost[g + 1]
@@ -252,8 +215,8 @@ def build(dtype) -> types.SimpleNamespace:
     dt = np.dtype(dtype)
     if dt.str not in _BUILT:
         _BUILT[dt.str] = types.SimpleNamespace(
-            k_mdbc=CK.kernel(k_mdbc, dt, {}), k_mdbc_own=CK.kernel(k_mdbc_own, dt, {}),
-            k_mdbc_src=CK.kernel(k_mdbc_src, dt, {}), k_mdbc_value=CK.kernel(k_mdbc_value, dt, {}),
+            k_mdbc=CK.kernel(k_mdbc, dt, {}), k_mdbc_src=CK.kernel(k_mdbc_src, dt, {}),
+            k_mdbc_value=CK.kernel(k_mdbc_value, dt, {}),
             k_edge_bound=CK.kernel(k_edge_bound, dt, {}))
     return _BUILT[dt.str]
 
@@ -323,14 +286,16 @@ class CudaMdbc:
             return
         # the ghosts near a cut reach into the halos: their sums go on over each halo's fluid
         acc = dv.dev_buf("mdbc_acc", 8 * ACC * nb).view(np.float64)
-        k.k_mdbc_own[CK.blocks(nb), CK.BLOCK](A["px"], A["py"], A["pz"], tab, A["id"], A["vx"], A["vy"], A["vz"],
-                                               A["rho"], dv.nf, dv.n, *geo, acc)
+        # the owned fluid first (the fluid half of this rank's grid, in the ghosts' frame)
+        k.k_mdbc_src[CK.blocks(nb), CK.BLOCK](tab, A["id"], dv.nf, dv.n, 0.0, 0.0, 0.0, A["px"], A["py"], A["pz"],
+                                               A["vx"], A["vy"], A["vz"], A["rho"], A["kind"], *geo, acc, True)
         for _, h in halos:
             src = self._mdbc_source(state, dv, h)
             if src is not None:
                 k.k_mdbc_src[CK.blocks(nb), CK.BLOCK](tab, A["id"], dv.nf, dv.n, *(float(x) for x in dv.ref[:3]),
                                                        *([0.0] * (3 - dv.dim)), *src, int(g["reach"]),
-                                                       dv.prm_d(state), dv.dim, int(state.opt[O_KERNEL]), acc)
+                                                       dv.prm_d(state), dv.dim, int(state.opt[O_KERNEL]), acc,
+                                                       False)
         k.k_mdbc_value[CK.blocks(nb), CK.BLOCK](A["px"], A["py"], A["pz"], tab, A["id"], A["vx"], A["vy"], A["vz"],
                                                  A["rho"], A["press"], dv.nf, dv.n, dv.prm_d(state), dv.dim,
                                                  float(det_min), bool(noslip), acc)
