@@ -21,6 +21,14 @@ stage() {  # name, limit seconds, command...
   echo "== $name rc=$rc $(( $(date +%s) - t0 )) s"
   tail -n 4 "$OUT/$name.log"
 }
+mps_on() {   # the CUDA MPS daemon: several processes share the GPU without time-slicing
+  export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
+  mkdir -p "$CUDA_MPS_PIPE_DIRECTORY" "$CUDA_MPS_LOG_DIRECTORY"
+  nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+}
+mps_off() {
+  echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?"
+}
 for s in "$@"; do
   case $s in
     tests)    stage tests 500 python3 -m pytest -q -m gpu -p no:cacheprovider tests/test_cuda_backend.py \
@@ -149,14 +157,12 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 tests/test_cuda_dufort.py tests/test_cuda_riemann.py tests/test_cuda_mdbc.py tests/test_cuda_halo.py ;;
     tests-fine) stage tests_fine 420 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_fine_runs_gpu.py ;;
     # two and four processes on the one GPU under CUDA MPS (issue 21 §3), ipc halos
-    mps)      export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
-              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
-              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+    mps)      mps_on
               stage mps2 300 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 2 --steps 30 --warmup 3 \
                 --schedules production bulk-synchronous --transports ipc --json "$OUT/mps2.json"
               stage mps4 200 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
                 --schedules production --transports ipc --json "$OUT/mps4.json"
-              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+              mps_off ;;
     # the device timeline of 2 mock ranks at 4.4 M, production and bulk-synchronous (Perfetto JSON)
     lanes-trace) stage lanes_trace 200 python3 benchmarks/gpu_lanes.py --dp 0.006 --ranks 2 --steps 10 --warmup 3 \
                 --trace-steps 2 --schedules production bulk-synchronous --chrome "$OUT" --json "$OUT/lanes_trace.json" ;;
@@ -181,9 +187,7 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
               stage multirank_gpu 200 python3 -m pytest -q -s -m gpu -p no:cacheprovider -rs tests/test_cuda_multirank.py ;;
     # two and four processes on the GPU under CUDA MPS at 4.4 and 13.3 M, both schedules; the float64
     # mpiexec -n 2 / -n 4 test under MPS; the paper's timers of 40-step MPS runs (sphgraph plot breakdown)
-    mps-21)   export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
-              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
-              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+    mps-21)   mps_on
               stage mps2_21 240 python3 benchmarks/gpu_multi.py --dp 0.006 0.004 --ranks 2 --steps 30 --warmup 3 \
                 --schedules production bulk-synchronous --transports ipc --json "$OUT/mps2_21.json"
               stage mps4_21 100 python3 benchmarks/gpu_multi.py --dp 0.006 --ranks 4 --steps 30 --warmup 3 \
@@ -193,7 +197,7 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
               stage mps_breakdown 100 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
                 --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
                 --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
-              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+              mps_off ;;
     # CPU under real MPI at 1.0 M on the 16 cores, 2 alternated rounds: 1 x 16 threads, -n 2 x 8 and
     # -n 4 x 4, each rank bound to its own cores (Hydra's -bind-to core:K)
     cpu-mpi-21) stage cpu_mpi_21 150 bash -c "B='python3 -m sphgraph bench examples/yeh_petroff.toml --dp 0.0045 \
@@ -211,13 +215,11 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     mock-21-4m) stage mock_21_4m 140 python3 benchmarks/gpu_mock_ranks.py --dp 0.006 --ranks 2 4 --steps 52 \
                 --warmup 3 --rounds 3 --transport auto --match --json "$OUT/mock_21_4m.json" ;;
     # the breakdown of 2 MPS processes by the paper's timers, production and bulk-synchronous
-    mps-breakdown) export CUDA_MPS_PIPE_DIRECTORY=/tmp/mps_pipe CUDA_MPS_LOG_DIRECTORY=/tmp/mps_log
-              mkdir -p $CUDA_MPS_PIPE_DIRECTORY $CUDA_MPS_LOG_DIRECTORY
-              nvidia-cuda-mps-control -d; echo "== mps daemon rc=$?"
+    mps-breakdown) mps_on
               stage mps_breakdown 70 python3 benchmarks/breakdown_mpi.py --scene examples/spheric2.toml --dp 0.006 \
                 --ranks 2 --steps 40 --backend numba-cuda --precision float32 \
                 --schedules production bulk-synchronous --png "$OUT/breakdown_mps2.png"
-              echo quit | nvidia-cuda-mps-control; echo "== mps quit rc=$?" ;;
+              mps_off ;;
     # a [forces] sample and a probe sample against a step at 1.0 M (Yeh & Petroff), float32, on the device
     probes-gpu) stage probes_gpu 60 python3 benchmarks/force_sample_cost.py --backend numba-cuda --dp 0.0045 \
                 --steps 10 --repeat 10 --probes ;;
