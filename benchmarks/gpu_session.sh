@@ -228,6 +228,16 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     tests-variants) stage tests_variants 110 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
                 tests/test_cuda_dufort.py tests/test_cuda_riemann.py tests/test_cuda_mdbc.py
               stage tests_probes 45 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_probe_sums.py ;;
+    # the device timeline of 1, 2 and 4 mock ranks at 4.4 M, production (where the GPU idles between
+    # the ranks' work), 3 traced steps each
+    timeline-21) for r in 1 2 4; do stage timeline_r$r 150 python3 benchmarks/gpu_lanes.py --dp 0.006 --ranks $r \
+                --steps 10 --warmup 3 --trace-steps 3 --schedules production --json "$OUT/timeline_r$r.json"; done ;;
+    # the GPU tests not yet run on the device: mDBC one rank and mock ranks, probe sums
+    tests-pending) stage tests_pending 330 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
+                tests/test_cuda_mdbc.py tests/test_cuda_mdbc_ranks.py tests/test_probe_sums.py ;;
+    # mDBC's cost on the GPU (issue 22 §2): SPHERIC 2 at ~1 M particles, float32, dbc / mdbc / mdbc-noslip
+    mdbc-cost) stage mdbc_cost 200 python3 benchmarks/mdbc_cost.py --scene examples/spheric2.toml --dp 0.01 \
+                --backend numba-cuda --precision float32 --steps 50 --warmup 10 ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done
