@@ -238,6 +238,10 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # mDBC's cost on the GPU (issue 22 §2): SPHERIC 2 at ~1 M particles, float32, dbc / mdbc / mdbc-noslip
     mdbc-cost) stage mdbc_cost 200 python3 benchmarks/mdbc_cost.py --scene examples/spheric2.toml --dp 0.01 \
                 --backend numba-cuda --precision float32 --steps 50 --warmup 10 ;;
+    # where the device's probe sums leave numba-cpu's (tests/test_probe_sums.py gpu test): fast
+    # launches and lanes on and off
+    probe-diag) for e in "" "SPHGRAPH_CUDA_FAST_LAUNCH=0" "SPHGRAPH_CUDA_STREAMS=0"; do
+                stage "probe_diag${e:+_${e%%=*}}" 90 env $e python3 .diag/probe_diag.py; done ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

@@ -77,7 +77,7 @@ def task_kinds(scene, split_axis=None, nranks: int = 1, sample: bool = False) ->
     if scene.extra.get("damping"):
         out.add(K.DAMPING)
     if scene.exclude_outside:
-        out.add(K.EXCLUDE)
+        out |= {K.CHECK, K.EXCLUDE}
     if sample and samples(scene):
         out.add(K.PROBES)
     return frozenset(out)
@@ -214,6 +214,11 @@ class Features:
         st = ctx.state
         self.motion.move(st, st.time + (st.dt if stage >= self.stages else 0.5 * st.dt))
 
+    def check_begin(self, ctx) -> None:
+        """The ``check`` task: the backend's end-of-step check of this rank's rows started;
+        ``exclude`` reads its finding."""
+        ctx.compute.check_begin(ctx.state, self.lo, self.hi)
+
     def exclude(self, ctx) -> None:
         """The ``exclude`` task: the backend's end-of-step check of this rank's rows; when it
         finds a row out of bounds, the rows outside the domain (non-periodic axes) or, fluid
@@ -223,7 +228,7 @@ class Features:
         and the rows left are checked again. The finding is ``state.check``
         (`Simulation.check` reports it)."""
         st = ctx.state
-        bad = ctx.compute.check(st, self.lo, self.hi)
+        bad = ctx.compute.check_end(st)
         if bad is not None and bad[1] in (2, 3):   # NaN (1) is the solver's to report
             bad = self._remove(ctx, bad)
         st.check, st.check_step = bad, st.step

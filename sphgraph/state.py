@@ -108,6 +108,7 @@ class RankState:
     # collects them
     check: tuple | None = None
     check_step: int = -1
+    pending_check: tuple | None = None              # started by check_begin, read by check_end
     excluded: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)      # data of user-defined tasks
 

@@ -425,15 +425,16 @@ def test_simulator_lanes_production_and_bulk_synchronous_agree(lane_runs, ranks)
 
 def _expected_lane_events(schedule, rank, nranks):
     """Cross-lane edges of one rank's step, from the rank graph (independent of the
-    scheduler's lane_edges), plus the accumulate-order edges between lanes. The scene's one
-    feature task is `exclude` (exclusion is on by default): the end-of-step check."""
+    scheduler's lane_edges), plus the accumulate-order edges between lanes. The scene's feature
+    tasks are `check` and `exclude` (exclusion is on by default): the end-of-step check, started
+    and read."""
     import networkx as nx   # noqa: F401  (rank_graph's)
     from sphgraph import Schedule
     from sphgraph.graph.build import rank_graph
     S = Schedule.load(schedule)
-    prog = S.program(rank, nranks, 1, features=("exclude",))
+    prog = S.program(rank, nranks, 1, features=("check", "exclude"))
     lane = {t.name: t.lane for t in prog}
-    g = rank_graph(S.canonical(rank, nranks, 1, features=("exclude",)))
+    g = rank_graph(S.canonical(rank, nranks, 1, features=("check", "exclude")))
     cross = {(u, v) for u, v in g.edges() if u in lane and v in lane and lane[u] != lane[v]}
     acc = {(a.name, b.name) for i, a in enumerate(prog) for b in prog[i + 1:]
            if a.lane != b.lane and set(a.accumulates) & set(b.accumulates)}

@@ -96,7 +96,7 @@ SHIFTING = {"shift_interior": {("shift_part", "interior")}, "shift_images": {("s
             "shift_displacement": {("shift_displacement", None)}, "shift_apply": {("shift_apply", None)}}
 SHIFTING_HALOS = {"shift_halo_1": {("shift_part", "halo_1")}, "shift_halo_2": {("shift_part", "halo_2")}}
 MOTION = {"motion": set(), "damping": set()}
-EXCLUSION = {"exclude": {("check", None)}}
+EXCLUSION = {"check": {("check", None)}, "exclude": set()}
 PROBES = {"probes": set()}
 MDBC = {"mdbc": {("mdbc", None)}}
 
@@ -244,6 +244,8 @@ def test_a_schedule_may_place_feature_tasks_and_the_validator_proves_the_place()
     # the unnamed ones are placed: shifting around integrate, then motion and damping, then the named wrap
     assert names.index("integrate@2") < names.index("shift_apply@2") < names.index("motion@2") \
         < names.index("damping@2") < names.index("wrap@2") < names.index("exclude")
+    # the check that exclude reads goes right before it when the order names exclude alone
+    assert names.index("check") == names.index("exclude") - 1
     # a reorder the data forbid: wrap (writes positions) before damping (reads them)
     bad = base + ["wrap", "damping"]
     with pytest.raises(ScheduleError, match="wrap@2 is placed before damping@2"):

@@ -294,10 +294,12 @@ def test_eager_order_gives_the_clock_orders_times_and_rows():
 
 
 def test_eager_order_reads_the_device_after_every_rank_issued_its_work():
-    """Under "eager" a task that waits for its rank's device (dt_local, exclude: Task.reads_device)
-    runs only once no rank has another task to issue: in every step, each rank's halo forces of
-    stage 1 ran before the first dt_local, and each rank's integrate of the last stage before the
-    first exclude (the order /timing's rows were recorded in). Under "clock" that is not so."""
+    """Under "eager" a task that waits for its rank's device (exclude: Task.reads_device) runs
+    only once no rank has another task to issue: in every step, each rank's check (which starts
+    what exclude reads) ran before the first exclude, and so did each rank's halo forces of stage 1
+    before the first dt_allreduce (a collective: dt_local only starts the dt terms, the wait for
+    them is the reduction's) -- the order /timing's rows were recorded in. Under "clock" the
+    exclude part is not so."""
     def first_read_after_all(cols, read, before):
         ok = []
         for step in np.unique(cols["step"]):
@@ -313,10 +315,10 @@ def test_eager_order_reads_the_device_after_every_rank_issued_its_work():
             sim.step()
         cols = sim.scheduler.times.columns()
         assert "exclude" in set(cols["task"])
-        res[order] = (first_read_after_all(cols, "dt_local", {"forces_halo_1@1", "forces_halo_2@1"}),
-                      first_read_after_all(cols, "exclude", {f"integrate@{sim.stages}"}))
+        res[order] = (first_read_after_all(cols, "dt_allreduce", {"forces_halo_1@1", "forces_halo_2@1"}),
+                      first_read_after_all(cols, "exclude", {"check"}))
     assert res["eager"] == (True, True)
-    assert res["clock"] != (True, True)
+    assert res["clock"] == (True, False)
 
 
 def test_auto_timing_without_a_device_clock_is_the_model():

@@ -64,9 +64,9 @@ def test_off_costs_nothing_and_changes_nothing():
     out = {}
     for mode in (None, "none"):
         sim = Simulation(tank(mode))
-        assert sim.features.shifting is None and sim.features.kinds == {TaskKind.EXCLUDE}
+        assert sim.features.shifting is None and sim.features.kinds == {TaskKind.CHECK, TaskKind.EXCLUDE}
         assert [t.name for t in sim.scheduler.programs[0]] == [
-            "build_cells", "forces_interior@1", "dt_local", "dt_allreduce", "integrate@1", "exclude"]
+            "build_cells", "forces_interior@1", "dt_local", "dt_allreduce", "integrate@1", "check", "exclude"]
         for _ in range(20):
             sim.step()
         assert "shift_parts" not in sim.contexts[0].state.extra

@@ -74,6 +74,17 @@ class ComputeBackend:
     def dt_local(self, state) -> float:
         raise NotImplementedError
 
+    def dt_local_begin(self, state) -> None:
+        """Start the rank's dt proposal; `dt_local_end` returns it. A device backend launches
+        its reduction and the copy of its terms here and waits for them only in
+        `dt_local_end` (the dt_allreduce task), so that ranks sharing a host queue all their
+        dt terms before the first wait. Here: computed at once."""
+        state.dt_local = self.dt_local(state)
+
+    def dt_local_end(self, state) -> float:
+        """The proposal `dt_local_begin` started (waits for it on a device backend)."""
+        return state.dt_local
+
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         raise NotImplementedError
 
@@ -161,6 +172,17 @@ class ComputeBackend:
         """(row, cause) of a bad particle or None; the causes are `sphgraph.errors.CAUSES`' codes
         1 (NaN in position or density), 2 (left the domain), 3 (density bounds)."""
         raise NotImplementedError
+
+    def check_begin(self, state, lo, hi) -> None:
+        """Start `check` (the ``check`` task); `check_end` (the ``exclude`` task) returns its
+        finding. A device backend launches the check and its copy here and waits only in
+        `check_end`, as `dt_local_begin`. Here: checked at once."""
+        state.pending_check = self.check(state, lo, hi)
+
+    def check_end(self, state) -> tuple[int, int] | None:
+        """The finding of the check `check_begin` started."""
+        bad, state.pending_check = state.pending_check, None
+        return bad
 
 
     # -- [probes] / [forces] samples (sphgraph.probes): each rank's partial sums ---------

@@ -11,7 +11,7 @@ from . import cuda_dufort as CD
 from . import cuda_halo as CH
 from . import cuda_kernels as CK
 from .base import dt_from_terms
-from .cuda_memory import count_bytes, dev_array, host_wait
+from .cuda_memory import count_bytes, dev_array
 
 # Symplectic: the corrector's forces see the pressure of the predicted density (as
 # numba-cpu and DualSPHysics); False would keep the step-start pressure.
@@ -22,6 +22,11 @@ class CudaStepDispatch:
     """NumbaCUDA's dt terms, integration and check (a mixin, as the others)."""
 
     def dt_local(self, state) -> float:
+        self.dt_local_begin(state)
+        return self.dt_local_end(state)
+
+    def dt_local_begin(self, state) -> None:
+        """The dt terms reduced and copied to pinned memory, an event after them; no wait."""
         dv = state.extra["dev"]
         k = self._k(state)
         A = dv.A()
@@ -33,11 +38,17 @@ class CudaStepDispatch:
         A["dtout"].copy_to_host(dv.pinned_dt, stream=s)     # after the compute lane's forces and reduce
         over = A.get("edge_over")
         if over is not None:                     # an edge outgrew its bound (ipc halos): never silent
-            over.copy_to_host(dv.pinned_i4[:1], stream=s)
-        host_wait(s)
-        if over is not None and int(dv.pinned_i4[0]):
+            over.copy_to_host(dv.pinned_over, stream=s)
+        dv.start_read("dt", s, over is not None)
+
+    def dt_local_end(self, state) -> float:
+        dv = state.extra["dev"]
+        pending, over = dv.wait_read("dt")
+        if not pending:                          # read already (a second call of the same step)
+            return state.dt_local
+        if over and int(dv.pinned_over[0]):
             from sphgraph.errors import SphgraphError
-            raise SphgraphError(f"rank {state.rank}: an edge of {int(dv.pinned_i4[0])} rows outgrew the bound "
+            raise SphgraphError(f"rank {state.rank}: an edge of {int(dv.pinned_over[0])} rows outgrew the bound "
                                 f"counted at the last check (cuda_halo.band_counts)")
         CH.check_generations(state, dv)          # ipc halos from other processes
         count_bytes(state, "d2h_bytes", "dt", 24)
@@ -98,6 +109,12 @@ class CudaStepDispatch:
         self._sync()
 
     def check(self, state, lo, hi):
+        self.check_begin(state, lo, hi)
+        return self.check_end(state)
+
+    def check_begin(self, state, lo, hi) -> None:
+        """The check and the next sort's band counts launched and copied to pinned memory, an
+        event after them; no wait."""
         dv = state.extra["dev"]
         k = self._k(state)
         A = dv.A()
@@ -115,7 +132,14 @@ class CudaStepDispatch:
         s = self._s(state)
         A["chk_box"].copy_to_host(dv.pinned_chk[:6], stream=s)
         A["chk_bad"].copy_to_host(dv.pinned_bad, stream=s)
-        host_wait(s)
+        dv.start_read("check", s, band)
+
+    def check_end(self, state):
+        dv = state.extra["dev"]
+        n, dim = dv.n, dv.dim
+        pending, band = dv.wait_read("check")
+        if not pending:
+            raise RuntimeError(f"rank {state.rank}: check_end without a check started (check_begin)")
         if band:
             CH.take_band(dv)
         box = dv.pinned_chk[:6].copy()

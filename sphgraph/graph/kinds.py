@@ -42,6 +42,9 @@ class TaskKind(Enum):
     MOTION = ("motion", "Motion", "compute", True)
     DAMPING = ("damping", "Damping", "compute", True)
     WRAP = ("wrap", "Periodic", "compute", True)
+    # the backend's end-of-step check of the rows, started (a device backend launches it and
+    # its copy to the host); `exclude` reads its finding
+    CHECK = ("check", "Exclusion", "compute", False)
     EXCLUDE = ("exclude", "Exclusion", "compute", False)
     PROBES = ("probes", "Probes", "compute", False)
 
@@ -77,7 +80,7 @@ FEATURES = (TaskKind.MDBC, TaskKind.SEND_MDBC, TaskKind.RECV_MDBC_1, TaskKind.RE
             TaskKind.FORCES_IMAGES, TaskKind.SHIFT_INTERIOR, TaskKind.SHIFT_IMAGES,
             TaskKind.SHIFT_HALO_1, TaskKind.SHIFT_HALO_2, TaskKind.SHIFT_DISPLACEMENT,
             TaskKind.SHIFT_APPLY, TaskKind.MOTION, TaskKind.DAMPING, TaskKind.WRAP,
-            TaskKind.EXCLUDE, TaskKind.PROBES)
+            TaskKind.CHECK, TaskKind.EXCLUDE, TaskKind.PROBES)
 # Kinds placed only when the run asks for them: rebalance on check steps, a feature's
 # tasks when the scene has the feature
 CONDITIONAL = (TaskKind.REBALANCE,) + FEATURES
@@ -111,5 +114,6 @@ PLACEMENT = {
     TaskKind.DAMPING: ("after", ("integrate", "shift_apply", "motion")),
     TaskKind.WRAP: ("after", ("integrate", "shift_apply", "motion", "damping")),
     TaskKind.EXCLUDE: ("end", ()),
+    TaskKind.CHECK: ("before", ("exclude",)),
     TaskKind.PROBES: ("end", ()),
 }

@@ -19,6 +19,7 @@ Data names (what tasks read, write or accumulate; `DATA` lists them):
   shift_sums  particle shifting's partial sums (one per source set, accumulated like forces)
   displacement  the shifting displacement of the step
   dt_local, dt  the rank's dt proposal and the global dt
+  row_check   the end-of-step check of the rows, started (its finding read by `exclude`)
   check       the end-of-step check's finding (row, cause) or none
   samples     the run's probe and body-force samples (sphgraph.probes)
   edges@s, displaced  outgoing messages (cross-rank edges join them to the receives)
@@ -31,8 +32,8 @@ boundary rows on the neighbours' halos), `forces_images@s`
 (`shift_interior`, `shift_images`, `shift_halo_1/2`, last stage), `shift_displacement`
 (before `integrate`, from the velocities the forces saw) and `shift_apply` (after it),
 `motion@s` (moving bodies at the stage's end time), `damping` and `wrap` (periodic axes,
-last stage), `exclude` (end of step: the backend's check, rows out of bounds
-removed) and `probes` (end of step, a collective: when a sample is due, each rank's
+last stage), `check` and `exclude` (end of step: the backend's check started, then its
+finding read and the rows out of bounds removed) and `probes` (end of step, a collective: when a sample is due, each rank's
 partial sums of its own rows added on the root). Their place in a schedule that does not name them is
 `kinds.PLACEMENT`.
 
@@ -46,7 +47,7 @@ from .task import GROUPS, Message, Task
 from ..wire import payload_nbytes
 
 DATA = ("rows", "positions", "velocities", "densities", "cells", "halo_1", "halo_2", "images",
-        "forces@s", "shift_sums", "displacement", "dt_local", "dt", "check", "samples", "edges@s",
+        "forces@s", "shift_sums", "displacement", "dt_local", "dt", "row_check", "check", "samples", "edges@s",
         "displaced") + tuple(GROUPS)
 
 # tags: one per (message type, stage, direction) so MPI's non-overtaking rule is never needed
@@ -63,7 +64,7 @@ STAGE = (K.SEND_EDGES, K.RECV_HALO_1, K.RECV_HALO_2, K.MDBC, K.SEND_MDBC, K.FORC
          K.FORCES_IMAGES, K.SHIFT_INTERIOR, K.SHIFT_IMAGES, K.RECV_MDBC_1, K.FORCES_HALO_1, K.SHIFT_HALO_1,
          K.RECV_MDBC_2, K.FORCES_HALO_2, K.SHIFT_HALO_2, K.DT_LOCAL, K.DT_ALLREDUCE, K.SHIFT_DISPLACEMENT, K.INTEGRATE,
          K.SHIFT_APPLY, K.MOTION, K.DAMPING, K.WRAP)
-POST = (K.REBALANCE, K.EXCLUDE, K.PROBES)
+POST = (K.REBALANCE, K.CHECK, K.EXCLUDE, K.PROBES)
 
 
 def in_stage(kind: K, stage: int, stages: int) -> bool:
@@ -157,7 +158,7 @@ def make_task(kind: K, stage: int | None, rank: int, nranks: int, lane: str | No
                     meta={"part": f"halo_{side}"})
     if kind is K.DT_LOCAL:
         return Task(kind, None, reads=("particles", "forces@1"), writes=("dt_local",), lane=lane,
-                    fn=run_dt_local, reads_device=True)
+                    fn=run_dt_local)
     if kind is K.DT_ALLREDUCE:
         return Task(kind, None, reads=("dt_local",), writes=("dt",), lane=lane,
                     fn=run_dt_allreduce, collective=True, reduce=("min", _dt_value))
@@ -256,14 +257,22 @@ def run_forces(ctx, task):
 
 def run_dt_local(ctx, task):
     ctx.compute.reduce_forces(ctx.state, 1)
-    ctx.state.dt_local = ctx.compute.dt_local(ctx.state) if ctx.fixed_dt is None else ctx.fixed_dt
+    if ctx.fixed_dt is None:
+        # started only: a device backend's wait for it is in dt_allreduce, so that on many
+        # ranks of one host every rank's dt terms are queued before the first wait
+        ctx.compute.dt_local_begin(ctx.state)
+    else:
+        ctx.state.dt_local = ctx.fixed_dt
 
 
 def run_dt_allreduce(ctx, task):
-    ctx.state.dt = ctx.comm.allreduce_min(ctx.state.dt_local)
+    ctx.state.dt = ctx.comm.allreduce_min(_dt_value(ctx))
 
 
 def _dt_value(ctx):
+    """The rank's dt proposal, read from the backend (its wait, once) unless fixed."""
+    if ctx.fixed_dt is None:
+        ctx.state.dt_local = ctx.compute.dt_local_end(ctx.state)
     return ctx.state.dt_local
 
 
@@ -309,6 +318,10 @@ def run_wrap(ctx, task):
     ctx.features.periodic.wrap(ctx.state)
 
 
+def run_check(ctx, task):
+    ctx.features.check_begin(ctx)
+
+
 def run_exclude(ctx, task):
     ctx.features.exclude(ctx)
 
@@ -338,8 +351,10 @@ FEATURE_ACCESS = {
     K.MOTION: (("rows", "dt"), ("positions", "velocities"), (), run_motion),
     K.DAMPING: (("rows", "positions", "velocities", "dt"), ("velocities",), (), run_damping),
     K.WRAP: (("positions",), ("positions",), (), run_wrap),
-    # the backend's end-of-step check; rows out of bounds removed (buffers for the new count)
-    K.EXCLUDE: (("particles", "dt"), ("particles", "cells", "check"), (), run_exclude),
+    # the backend's end-of-step check started, then its finding read; rows out of bounds
+    # removed (buffers for the new count)
+    K.CHECK: (("particles", "dt"), ("row_check",), (), run_check),
+    K.EXCLUDE: (("particles", "row_check"), ("particles", "cells", "check"), (), run_exclude),
     # a collective (each rank's partial sums to the root) at the steps a sample is due
     K.PROBES: (("particles", "dt"), ("samples",), (), run_probes),
 }
