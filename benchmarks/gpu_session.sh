@@ -238,10 +238,15 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # mDBC's cost on the GPU (issue 22 §2): SPHERIC 2 at ~1 M particles, float32, dbc / mdbc / mdbc-noslip
     mdbc-cost) stage mdbc_cost 200 python3 benchmarks/mdbc_cost.py --scene examples/spheric2.toml --dp 0.01 \
                 --backend numba-cuda --precision float32 --steps 50 --warmup 10 ;;
-    # where the device's probe sums leave numba-cpu's (tests/test_probe_sums.py gpu test): fast
-    # launches and lanes on and off
-    probe-diag) for e in "" "SPHGRAPH_CUDA_FAST_LAUNCH=0" "SPHGRAPH_CUDA_STREAMS=0"; do
-                stage "probe_diag${e:+_${e%%=*}}" 90 env $e python3 .diag/probe_diag.py; done ;;
+    # where the device's probe sums leave numba-cpu's (tests/test_probe_sums.py gpu test)
+    probe-diag) stage probe_diag 120 python3 .diag/probe_diag.py ;;
+    # 13.3 M: mock 2 and 4 against single, 3 alternated rounds of 52 steps (the final tree)
+    mock-21-13m) stage mock_21_13m 330 python3 benchmarks/gpu_mock_ranks.py --dp 0.004 --ranks 2 4 --steps 52 \
+                --warmup 3 --rounds 3 --transport auto --json "$OUT/mock_21_13m.json" ;;
+    # what overlap buys on 2 mock ranks at 4.4 M: production against bulk-synchronous, with each
+    # run's device timeline (Perfetto JSON)
+    lanes-ab) stage lanes_ab 150 python3 benchmarks/gpu_lanes.py --dp 0.006 --ranks 2 --steps 30 --warmup 3 \
+                --trace-steps 2 --schedules production bulk-synchronous --chrome "$OUT" ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done
