@@ -204,9 +204,14 @@ SCRIPT = textwrap.dedent('''
         rel = 0.0
         for (db, ds), (cb, cs) in zip(dev, cpu):
             assert np.array_equal(db["zrange"], cb["zrange"]) and np.array_equal(db["edge"], cb["edge"])
-            for key in ("points", "forces"):
-                scale = np.maximum(np.abs(cs[key]).max(0), 1e-30)
-                rel = max(rel, float((np.abs(ds[key] - cs[key]) / scale).max()))
+            # each sum against the largest of its kind over the rows (the velocity sums' three
+            # components together, a force's three together, as `errors` scales a sample): a
+            # component zero by the scene's symmetry holds only round-off, which on a GPU (other
+            # summation order) is not that of the host
+            for key, groups in (("points", ((0,), (1,), (2, 3, 4))), ("forces", ((0, 1, 2),))):
+                for g in groups:
+                    scale = max(float(np.abs(cs[key][:, list(g)]).max(initial=0.0)), 1e-30)
+                    rel = max(rel, float(np.abs(ds[key][:, list(g)] - cs[key][:, list(g)]).max(initial=0.0)) / scale)
         nedge = sum(len(b["edge"]) for b in bounds)
         return {"sample": sample, "partial_rel": rel, "on_device": on_device, "host_bytes": host,
                 "edge_rows": nedge, "samples": len(s.rows["forces"])}
@@ -232,13 +237,15 @@ def test_simulator_sums_equal_numba_cpu(ranks, dim):
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_gpu_sums_equal_numba_cpu(precision):
     """On a real GPU (lanes, fast launches), one and two mock ranks, 2D and 3D, 3 steps. The sums are
-    float64 in both precisions, so the partial sums match numba-cpu's of the same rows to
-    round-off either way; a float32 run's gathered reference takes float32 pressures
-    (host_arrays), hence 1e-6 there."""
+    float64 in both precisions; in float32 the device's pressures are float32 (the rows' packed
+    pressure) where the host computes them from the density in float64, and the gathered
+    reference takes float32 pressures (host_arrays): 1e-6 there for the partial sums and the
+    sample alike. Measured on the H200 in float64 (the per-kind scale above): 8e-16 to 3e-13."""
     out = run_script(SCRIPT + f"\nprint(json.dumps([compare(1, 3, {precision!r}), compare(2, 3, {precision!r}), "
                               f"compare(1, 3, {precision!r}, dim=3), compare(2, 3, {precision!r}, dim=3)]))",
                      sim=False, timeout=600)
     for r in out:
         assert all(b > 0 for b in r["on_device"]) and not any(r["host_bytes"]), r
-        assert r["partial_rel"] < TOL, r
-        assert max(r["sample"].values()) < (TOL if precision == "float64" else 1e-6), r
+        tol = TOL if precision == "float64" else 1e-6
+        assert r["partial_rel"] < tol, r
+        assert max(r["sample"].values()) < tol, r
