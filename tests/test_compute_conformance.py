@@ -38,6 +38,19 @@ def arrays_after(backend, steps, scene, precision="float64"):
     return sim, sim.frame_arrays()
 
 
+_STEPPED = {}
+
+
+def tiny_after_steps(backend, integrator, steps=5):
+    """The gathered rows after `steps` steps of `tiny_scene(integrator=...)` on `backend`, run
+    once per process: test_steps_match_naive and TestNumbaCUDA.test_steps_match_numba_cpu
+    check the same run (in the simulator each such run takes ~12 s). Read only."""
+    key = (backend, integrator, steps)
+    if key not in _STEPPED:
+        _STEPPED[key] = arrays_after(backend, steps, tiny_scene(integrator=integrator))[1]
+    return _STEPPED[key]
+
+
 class ComputeConformance:
     backend = None
 
@@ -77,7 +90,7 @@ class ComputeConformance:
     def test_steps_match_naive(self, integrator):
         """5 steps (forces, dt, integration) against tests/naive.py's O(N^2) stepping."""
         sc = tiny_scene(integrator=integrator)
-        _, got = arrays_after(self.backend, 5, sc)
+        got = tiny_after_steps(self.backend, integrator, 5)
         pos, vel, rho = naive.steps(sc.build_particles(), sc.constants, sc.physics, 5, integrator)
         np.testing.assert_array_equal(got["id"], np.arange(len(rho)))
         assert np.abs(got["position"] - pos).max() <= 1e-9 * 1.0
@@ -193,9 +206,8 @@ class TestNumbaCUDA(ComputeConformance):
 
     @pytest.mark.parametrize("integrator", ["verlet", "symplectic"])
     def test_steps_match_numba_cpu(self, integrator):
-        sc = tiny_scene(integrator=integrator)
-        _, ref = arrays_after("numba-cpu", 5, sc)
-        _, got = arrays_after(self.backend, 5, sc)
+        ref = tiny_after_steps("numba-cpu", integrator, 5)
+        got = tiny_after_steps(self.backend, integrator, 5)
         np.testing.assert_array_equal(got["id"], ref["id"])
         assert np.abs(got["position"] - ref["position"]).max() <= 1e-9 * 1.0
         np.testing.assert_allclose(got["density"], ref["density"], rtol=1e-9)
