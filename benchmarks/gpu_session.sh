@@ -251,9 +251,8 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # (all) and H/120 (the Riemann ones), float64 on the device, one JSON line a run
     buchner-80) stage buchner_80 330 python3 benchmarks/buchner_sweep.py --backend numba-cuda --precision float64 \
                 --dp-fractions 80 --variants all --timeout-per-run 90 --json "$OUT/buchner_80.json" ;;
-    buchner-120) stage buchner_120 300 python3 benchmarks/buchner_sweep.py --backend numba-cuda --precision float64 \
-                --dp-fractions 120 --variants zhang zhang-eta1 zhang-eta0.3 zhang-shift --timeout-per-run 90 \
-                --json "$OUT/buchner_120.json" ;;
+    buchner-120) stage buchner_120 200 python3 benchmarks/buchner_sweep.py --backend numba-cuda --precision float64 \
+                --dp-fractions 120 --variants zhang-eta0.3 --timeout-per-run 190 --json "$OUT/buchner_120.json" ;;
     # the probe-sum GPU test (one and two mock ranks, 2D and 3D, float64 and float32)
     tests-probes) stage tests_probes 120 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_probe_sums.py ;;
     *) echo "unknown stage $s"; exit 2 ;;
