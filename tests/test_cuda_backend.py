@@ -342,8 +342,9 @@ def test_simulator_multirank_matches_cpu(integrator, schedule, shift):
     the ranks sent stale host rows and re-uploaded them every step: 8e-7 of the domain,
     1e-2 in density.) The cut is moved by 2 spacings (up, then down), so rows change rank
     in the first step: they must be removed and appended on the device, with no whole
-    re-upload and no whole download."""
-    r = run_script(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 3, 2, {schedule!r}, shift={shift})))",
+    re-upload and no whole download. Two steps: the step the rows change rank in and one
+    after it."""
+    r = run_script(MULTI + f"\nprint(json.dumps(multi(2, {integrator!r}, 2, 2, {schedule!r}, shift={shift})))",
              sim=True, timeout=600)
     assert r["ids"]
     assert r["pos"] < 1e-9, r
