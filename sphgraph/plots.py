@@ -326,12 +326,15 @@ def plot_timeline(out_dir, path=None, steps="last3") -> str:
     return _save(fig, path)
 
 
-def plot_breakdown(out_dir, path=None, timers: bool = True) -> str:
+def plot_breakdown(out_dir, path=None, timers: bool = True, timing: dict | None = None,
+                   title: str = "time breakdown by task") -> str:
     """Share of each task per rank (the seed paper's Figs. 11-12), stacked bars; by the
     paper's timer names (SendEdge, RecvHalo, SendDisplaced, RecvDisplaced, SynchroDt,
-    Balancing, FC, NL, PU) unless `timers` is False (then by task kind)."""
+    Balancing, FC, NL, PU) unless `timers` is False (then by task kind). `timing`: a table
+    of the same columns as a run's /timing (rank, task, start, end, step) instead of the
+    one in out_dir (benchmarks/trace_breakdown.py: a device trace's)."""
     from .trace import load_timing, seconds_by_rank_and_kind
-    t = load_timing(out_dir)
+    t = load_timing(out_dir) if timing is None else timing
     path = _check_path(path or os.path.join(os.fspath(out_dir), "breakdown.png"), "breakdown")
     per = seconds_by_rank_and_kind(t, timers=timers)
     kinds = sorted({k for d in per.values() for k in d})
@@ -347,7 +350,7 @@ def plot_breakdown(out_dir, path=None, timers: bool = True) -> str:
         bottom += share
     ax.set_xlabel("rank")
     ax.set_ylabel("share of task time [%]")
-    ax.set_title("time breakdown by task")
+    ax.set_title(title)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return _save(fig, path)
 

@@ -1,5 +1,6 @@
 """Command line contracts: exit codes, one-line errors, nothing written on bad input,
 blow-up reported with step and particle id, output readable (also by VTK's XDMF reader)."""
+import json
 import os
 import subprocess
 import sys
@@ -265,3 +266,31 @@ def test_bench_takes_the_rebalance_flags(tmp_path, capsys):
         assert main(["bench", str(scene), "--comm", "mock", "--ranks", "4", "--steps", "4", "--warmup", "1",
                      *flags]) == 0
         assert ("rebalance" in json.loads(capsys.readouterr().out)["task_seconds"]) is placed
+
+
+def test_breakdown_of_a_device_trace(tmp_path):
+    """benchmarks/trace_breakdown.py: a device trace's task intervals become /timing's columns
+    (copies inside tasks left out), grouped by the paper's timers per rank, drawn by
+    `plots.plot_breakdown` from that table."""
+    import importlib.util
+    root = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+    spec = importlib.util.spec_from_file_location("trace_breakdown", os.path.join(root, "benchmarks", "trace_breakdown.py"))
+    tb = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tb)
+    ev = [{"ph": "M", "name": "process_name", "pid": 0, "args": {"name": "rank 0 (device)"}}]
+    for r in (0, 1):
+        for step in (5, 6):
+            ev += [{"ph": "X", "name": "forces_interior@1", "pid": r, "tid": 0, "ts": 1000.0 * step, "dur": 300.0,
+                    "args": {"step": step}},
+                   {"ph": "X", "name": "send_edges@1", "pid": r, "tid": 1, "ts": 1000.0 * step, "dur": 100.0,
+                    "args": {"step": step}},
+                   {"ph": "X", "name": "edge_d2h", "pid": r, "tid": 2, "ts": 1000.0 * step, "dur": 50.0,
+                    "args": {"step": step, "inside": "send_edges@1"}}]
+    trace = {"traceEvents": ev, "otherData": {"schedule": "production", "ranks": 2, "particles": 10}}
+    p = tmp_path / "device_x.json"
+    p.write_text(json.dumps(trace))
+    out = tb.main([str(p), "--png-dir", str(tmp_path)])
+    ms = out[0]["ms_per_step"]
+    assert out[0]["steps"] == 2
+    assert ms[0] == pytest.approx({"FC": 0.3, "SendEdge": 0.1}) and ms[1] == pytest.approx(ms[0])
+    assert (tmp_path / "breakdown_device_x.png").stat().st_size > 1000
