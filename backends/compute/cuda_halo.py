@@ -267,11 +267,12 @@ def send_edge(be, state, dv, domain, direction, slot) -> DeviceEdge:
     hk = be._on(state, HK.build(dv.dtype))
     s = be._s(state)
     be._on(state, CK.build(dv.dtype)).k_fill[1, 1](d["head"], 1, e["gen"])     # head[0]: the generation
-    hk.k_halo_pack[min(CK.blocks(max(cap, 2 * nch + 1)), 4096), CK.BLOCK](
+    # a grid-stride loop: the launch covers the rows' bound, not the slot's rounded capacity
+    hk.k_halo_pack[min(CK.blocks(max(fb + bb, 2 * nch + 1)), 4096), CK.BLOCK](
         A["start"], c0 * n0 * n1, nch, int(g["ncells"]), A["pos4"], A["vel4"], A["kind"], cap,
         d["start"], d["pos4"], d["vel4"], d["kind"], A["edge_over"])
     e["event"].record(s if s else 0)
-    dv.mdbc_edges[direction] = ("slot", slot, c0 * n0 * n1, nch, cap)     # mdbc_edge: the same planes again
+    dv.mdbc_edges[direction] = ("slot", slot, c0 * n0 * n1, nch, cap, bb)     # mdbc_edge: the same planes again
     state.bytes_sent += nb
     origin = np.array(g["origin"], np.float64)
     origin[2] += c0 * g["size"]

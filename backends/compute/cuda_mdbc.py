@@ -337,7 +337,7 @@ class CudaMdbc:
         rec = dv.mdbc_edges.get(direction, ("host",))
         dim = dv.dim
         if rec[0] == "slot":
-            _, slot, f0, nch, cap = rec
+            _, slot, f0, nch, cap, bb = rec
             e = dv.edge_slots[slot]
             lay, nb = CH.edge_layout(cap, nch, dv.dtype)
             d = kept_views(e, e["buf"], lay, nb)
@@ -345,7 +345,8 @@ class CudaMdbc:
             if ev is None:
                 ev = e["mdbc_event"] = new_event(False)
             A = dv.arrays
-            self._on(state, build(dv.dtype)).k_edge_bound[min(CK.blocks(max(cap, 1)), 4096), CK.BLOCK](
+            # a grid-stride loop over the boundary rows: the launch covers their bound
+            self._on(state, build(dv.dtype)).k_edge_bound[min(CK.blocks(max(bb, 1)), 4096), CK.BLOCK](
                 A["start"], f0, nch, int(dv.grid["ncells"]), A["pos4"], A["vel4"], cap, d["pos4"], d["vel4"])
             s = self._s(state)
             ev.record(s if s else 0)
