@@ -56,26 +56,6 @@ def count_bytes(state, direction, kind, nbytes):
 class DeviceState:
     """Device arrays of one rank (structure of arrays) and the pinned host buffers."""
 
-    def start_read(self, name, stream, payload=None) -> None:
-        """Copies into pinned memory were queued on `stream` for the read `name`: an event
-        after them; `wait_read(name)` waits for it and returns `payload`. The host waits
-        late, so ranks sharing a host queue their work before any of them waits."""
-        ev = self.read_events.get(name)
-        if ev is None:
-            ev = self.read_events[name] = new_event(False)
-        ev.record(stream)
-        self.reads[name] = payload
-
-    def wait_read(self, name):
-        """(True, payload) once the host waited for the read `name`; (False, None) when none
-        is pending (read already)."""
-        if name not in self.reads:
-            return False, None
-        payload = self.reads.pop(name)
-        COUNTERS["host_wait"] += 1
-        self.read_events[name].synchronize()
-        return True, payload
-
     def __init__(self, n, dim, dtype, ref):
         self.n = n
         self.dim = dim
@@ -94,7 +74,7 @@ class DeviceState:
         self.pinned_chk = pinned_array(7, np.float64)
         self.pinned_bad = pinned_array(1, np.int64)
         self.pinned_i4 = pinned_array(4, np.int32)
-        self.pinned_over = pinned_array(1, np.int32)   # dt_local's edge_over, read after other tasks' pinned_i4
+        self.pinned_over = pinned_array(1, np.int32)   # dt's edge_over flag: read in dt_allreduce, after other tasks' pinned_i4
         self.pinned_meta = pinned_array(9, np.float64)  # cuda_halo
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
@@ -137,6 +117,26 @@ class DeviceState:
     kind = property(lambda self: self.arrays["kind"])
     start = property(lambda self: self.arrays["start"])
     perm = property(lambda self: self.views["perm"])
+
+    def start_read(self, name, stream, payload=None) -> None:
+        """Copies into pinned memory were queued on `stream` for the read `name`: an event
+        after them; `wait_read(name)` waits for it and returns `payload`. The host waits
+        late, so ranks sharing a host queue their work before any of them waits."""
+        ev = self.read_events.get(name)
+        if ev is None:
+            ev = self.read_events[name] = new_event(False)
+        ev.record(stream)
+        self.reads[name] = payload
+
+    def wait_read(self, name):
+        """(True, payload) once the host waited for the read `name`; (False, None) when none
+        is pending (read already)."""
+        if name not in self.reads:
+            return False, None
+        payload = self.reads.pop(name)
+        COUNTERS["host_wait"] += 1
+        self.read_events[name].synchronize()
+        return True, payload
 
     def A(self) -> dict:
         """Owned arrays and views by name."""
