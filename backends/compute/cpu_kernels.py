@@ -43,38 +43,9 @@ def forces(dpos, dvel, drho, dpress, dkind,
     nm = dims[1]
     ns = dims[2]
     for i in prange(dpos.shape[0]):
-        # cell range around i along each permuted axis, clipped to the source grid: the range
-        # of sphgraph.cells.cell_window, written out here only. With fastmath, LLVM
-        # reassociates fluid_pair's Fourtakas factor (-delta 2h) c0 m_b in the order the
-        # prm loads are emitted, and through a call (cell_window, or an inline='always'
-        # helper of this very code) that order changes: other last bits in the 3D examples
-        # (tests/test_examples_baseline.py). forces_riemann / forces_df call cell_window.
-        lo0 = 0
-        hi0 = 0
-        lo1 = 0
-        hi1 = 0
-        lo2 = 0
-        hi2 = 0
-        empty = False
-        for k in range(3):
-            a = axes[k]
-            lo = 0
-            hi = 0
-            if a >= 0:
-                c = int(math.floor((dpos[i, a] - origin[k]) * inv_size))
-                lo = max(c - reach, 0)
-                hi = min(c + reach, dims[k] - 1)
-                if lo > hi:
-                    empty = True
-            if k == 0:
-                lo0 = lo
-                hi0 = hi
-            elif k == 1:
-                lo1 = lo
-                hi1 = hi
-            else:
-                lo2 = lo
-                hi2 = hi
+        lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
+            dpos[i, 0], dpos[i, 1], dpos[i, 2] if dim == 3 else 0.0, origin[0], origin[1], origin[2], inv_size,
+            nf, nm, ns, axes[0], axes[1], axes[2], reach)
         axx = 0.0 * drho[i]
         ayy = axx
         azz = axx

@@ -17,6 +17,7 @@ import types
 import numpy as np
 from numba import cuda, int32, njit
 
+from sphgraph.cells import cell_window
 from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
 from sphgraph.physics.eos import tait
 from sphgraph.physics.interact import bound_pair, fluid_pair
@@ -50,45 +51,13 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
     support2 = prm[P_SUPPORT2]
     mf = prm[P_MASS_F]
     mb = prm[P_MASS_B]
-    lo0 = 0
-    hi0 = 0
-    lo1 = 0
-    hi1 = 0
-    lo2 = 0
-    hi2 = 0
-    q0 = 0.0   # destination coordinate along (fast, mid, slow), float64
-    q1 = 0.0
-    q2 = 0.0
-    empty = False
-    # sphgraph.cells.cell_window's range, written out with the coordinates q0..q2 it reads:
-    # through cell_window (values loaded first, then selected) the row set-up takes 24
-    # instructions more (sm_90)
-    for k in range(3):
-        a = a0 if k == 0 else (a1 if k == 1 else a2)
-        o = o0 if k == 0 else (o1 if k == 1 else o2)
-        nk = n0 if k == 0 else (n1 if k == 1 else n2)
-        lo = 0
-        hi = 0
-        x = 0.0
-        if a >= 0:
-            x = dpx[i] if a == 0 else (dpy[i] if a == 1 else dpz[i])
-            c = int(math.floor((x - o) * inv_size))
-            lo = max(c - reach, 0)
-            hi = min(c + reach, nk - 1)
-            if lo > hi:
-                empty = True
-        if k == 0:
-            lo0 = lo
-            hi0 = hi
-            q0 = x
-        elif k == 1:
-            lo1 = lo
-            hi1 = hi
-            q1 = x
-        else:
-            lo2 = lo
-            hi2 = hi
-            q2 = x
+    z = dpz[i] if dim == 3 else 0.0     # 2D: dpz is a dummy
+    lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(dpx[i], dpy[i], z, o0, o1, o2, inv_size, n0, n1, n2,
+                                                      a0, a1, a2, reach)
+    # the destination's coordinate along (fast, mid, slow), for the chords below
+    q0 = dpx[i] if a0 == 0 else (dpy[i] if a0 == 1 else z)
+    q1 = dpx[i] if a1 == 0 else (dpy[i] if a1 == 1 else z)
+    q2 = dpx[i] if a2 == 0 else (dpy[i] if a2 == 1 else z)
     # rows of cells along the fast axis are cut to the part that the 2h sphere can reach
     # (padded: only rows/cells wholly beyond 2h are skipped, so the pairs are the CPU's)
     size = 1.0 / inv_size

@@ -54,7 +54,7 @@ import math
 from numba import njit
 
 from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI,
+                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_DDT_KCM, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI,
                       D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
@@ -130,7 +130,8 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
                 drho_h = (prm[P_RHO0] * y) * (prm[P_HYD1] + y * (prm[P_HYD2] + y * (prm[P_HYD3] + y * prm[P_HYD4])))
             else:
                 drho_h = prm[P_RHO0] * ((1.0 + y) ** prm[P_HYD1] - 1.0)
-            ddt = (-prm[P_DDT_KH] * prm[P_C0] * mass_b) * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
+            # -delta 2h c0 m_b with m_b = m_f: a boundary b never reaches here (it cancels the term)
+            ddt = -prm[P_DDT_KCM] * ((rho_b - rho_a) - drho_h) * inv_r2e * rfr * inv_rho_b
     return ax, ay, az, ar, ddt, cancel, dot_rr2
 
 
