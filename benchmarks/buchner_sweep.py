@@ -64,6 +64,9 @@ VARIANTS = {   # in run order: the Riemann family first, DualSPHysics' reference
     "zhang-eta0.3": (ZHANG + ("riemann_eta=0.3",), None, "zhang2017, Symplectic, limiter eta 0.3 (1/10)"),
     "zhang-mdbc": (ZHANG, "mdbc", "zhang2017, Symplectic, mDBC walls (free slip)"),
     "zhang-eta1-mdbc": (ZHANG + ("riemann_eta=1.0",), "mdbc", "zhang2017, Symplectic, eta 1, mDBC walls"),
+    "zhang-eta0.3-mdbc": (ZHANG + ("riemann_eta=0.3",), "mdbc",
+                          "zhang2017, Symplectic, eta 0.3, mDBC walls (the weakest limiter raised the plateau, "
+                          "mDBC walls the first peak: both together)"),
     "zhang-shift": (ZHANG + ("shifting=nobound", "shifting_tfs=1.5"), None,
                     "zhang2017, Symplectic, particle shifting (Lind et al.; nobound, free-surface threshold 1.5)"),
     "dsph-df": (("diffusion_time=dufort-frankel",), None,

@@ -253,6 +253,9 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --dp-fractions 80 --variants all --timeout-per-run 90 --json "$OUT/buchner_80.json" ;;
     buchner-120) stage buchner_120 200 python3 benchmarks/buchner_sweep.py --backend numba-cuda --precision float64 \
                 --dp-fractions 120 --variants zhang-eta0.3 --timeout-per-run 190 --json "$OUT/buchner_120.json" ;;
+    buchner-120-mdbc) stage buchner_120_mdbc 420 python3 benchmarks/buchner_sweep.py --backend numba-cuda \
+                --precision float64 --dp-fractions 80 120 --variants zhang-eta0.3-mdbc --timeout-per-run 200 \
+                --json "$OUT/buchner_120_mdbc.json" ;;
     # the probe-sum GPU test (one and two mock ranks, 2D and 3D, float64 and float32)
     tests-probes) stage tests_probes 120 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_probe_sums.py ;;
     *) echo "unknown stage $s"; exit 2 ;;
