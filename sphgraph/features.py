@@ -37,8 +37,8 @@ import numpy as np
 from .graph.kinds import TaskKind as K
 
 SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
-MDBC_SUPPORTED = ("--backend numba-cpu (one rank or several) or numba-cuda (one rank or --comm mock ranks), "
-                  "no [[motion]] bodies, no periodic axes on several ranks")
+MDBC_SUPPORTED = ("--backend numba-cpu (one rank or several) or numba-cuda (one rank or several; MPI ranks with "
+                  "--halo-transport staged), no [[motion]] bodies, no periodic axes on several ranks")
 MDBC_KINDS = (K.MDBC, K.SEND_MDBC, K.RECV_MDBC_1, K.RECV_MDBC_2)
 
 
@@ -145,9 +145,10 @@ class Features:
         """Whether the slab chain closes into a ring (the split axis is periodic)."""
         return is_ring(self.scene, axis, nranks)
 
-    def check_backend(self, compute_cls, nranks: int, one_process: bool = True) -> None:
+    def check_backend(self, compute_cls, nranks: int, one_process: bool = True, halo_transport: str = "staged") -> None:
         """Refuse (InputError, one line) a feature the compute backend does not run
-        (`one_process`: the ranks share this process, as mock ranks do)."""
+        (`one_process`: the ranks share this process, as mock ranks do; `halo_transport`:
+        the run's, "auto" resolved)."""
         from .errors import InputError
         s, ph, name = self.scene, self.scene.physics, compute_cls.name
         have = compute_cls.scene_features
@@ -161,14 +162,18 @@ class Features:
         if ph.boundary != "dbc":
             why = (f"--backend {name}" if "mdbc" not in have
                    else f"{nranks} ranks on --backend {name}" if nranks != 1 and "mdbc-ranks" not in have
-                   # the device exchange is proven on ranks of one process only (mock)
-                   else f"{nranks} MPI ranks on --backend {name}" if (nranks != 1 and not one_process
-                                                                       and compute_cls.device_resident)
                    else "periodic axes on several ranks" if nranks != 1 and s.periodic
                    else "[[motion]] bodies" if s.extra.get("motion") else None)
             if why is not None:
                 raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "
                                  f"(or use boundary = \"dbc\"), got {why}")
+            if nranks != 1 and not one_process and halo_transport == "ipc":
+                # ipc's send_mdbc message is a device event (cuda_mdbc.MdbcDone), which has no
+                # wire form: MPI ranks exchange the values through the host (staged)
+                raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" on MPI ranks runs with "
+                                 f"--halo-transport staged (ipc's mDBC exchange signals the neighbour by a device "
+                                 f"event, which cannot leave its process): expected --halo-transport staged or "
+                                 f"auto, got --halo-transport ipc on {nranks} MPI ranks")
 
     def check_schedule(self, schedule, nranks: int) -> None:
         """mDBC on several ranks: the schedule must bring both halos before the stage's first

@@ -103,7 +103,7 @@ class Simulation:
         from .features import Features
         # mDBC, periodic images, shifting, moving bodies...: only what the scene asks, as tasks
         self.features = Features(scene, sample=sample)
-        self.features.check_backend(compute_cls, self.nranks, self.comm.one_process)
+        self.features.check_backend(compute_cls, self.nranks, self.comm.one_process, self.halo_transport)
         self.features.check_schedule(self.schedule, self.nranks)
         self.probe_sampler = self.features.probes   # its samples go into checkpoints and come back
         self.schedule.validate(self.nranks, self.stages, self.user_tasks, rebalance=self.rebalance,

@@ -61,17 +61,19 @@ def check_compared(out, gap=None):
 
 
 # ------------------------------------------------------------------ the feature tests' runs
-def tank(dim, physics, layers=1, fluid_3d_top=(0.2, 0.3, 0.25), initial=None):
+def tank(dim, physics, layers=1, fluid_3d_top=(0.2, 0.3, 0.25), initial=None, fluid_2d_top=(0.5, 0.8),
+         tank_2d=(1.5, 1.2)):
     """The feature tests' scene, dp 0.05: a water column in a tank with `layers` wall layers
-    (2D: 0.5 x 0.8 m in 1.5 x 1.2 m; 3D: up to `fluid_3d_top` in 0.4 x 0.3 x 0.4 m, cells of h),
-    `physics` over the defaults, `initial` the [initial] table if any."""
+    (2D: up to `fluid_2d_top` in a tank of `tank_2d`, by default 0.5 x 0.8 m in 1.5 x 1.2 m, the
+    domain 0.2 m beyond it, 0.3 m above; 3D: up to `fluid_3d_top` in 0.4 x 0.3 x 0.4 m, cells of
+    h), `physics` over the defaults, `initial` the [initial] table if any."""
     from sphgraph.scene import Scene
     if dim == 2:
         d = {"format": 1, "dim": 2, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
-             "domain": {"min": [-0.2, -0.2], "max": [1.7, 1.5]},
+             "domain": {"min": [-0.2, -0.2], "max": [tank_2d[0] + 0.2, tank_2d[1] + 0.3]},
              "physics": {},
-             "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [0.5, 0.8]}],
-             "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.5, 1.2], "layers": layers}]}
+             "fluid": [{"type": "box", "min": [0.0, 0.0], "max": list(fluid_2d_top)}],
+             "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": list(tank_2d), "layers": layers}]}
     else:
         d = {"format": 1, "dim": 3, "dp": 0.05, "end_time": 1.0, "output_interval": 1.0,
              "domain": {"min": [-0.2, -0.2, -0.2], "max": [0.6, 0.5, 0.6]},

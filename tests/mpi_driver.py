@@ -14,6 +14,13 @@ Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`)
                       with --halo-transport staged and ipc; ipc must give the staged bits,
                       both the single-rank numba-cuda run to TOL, and no halo bytes may
                       cross the bus with ipc (per-rank bytes_by_kind)
+  cuda-mdbc           numba-cuda (numba's CUDA simulator when NUMBA_ENABLE_CUDASIM=1), float64, the
+                      small 2D tank of tests/test_cuda_mdbc_ranks.py (`mpi_scene`) with mDBC no-slip,
+                      bulk-synchronous, SPHGRAPH_MDBC_STEPS steps (2), the default halo transport:
+                      against numba-cpu on one rank (positions to TOL, velocities 1e-10 m/s,
+                      densities 1e-6 kg/m^3, the same ids); per rank the mDBC bytes read from and
+                      uploaded to the device, and how many boundary rows' ghost nodes have the
+                      halo's fluid within 2h (the sums that cross the cut)
 Exit code 0 when every check passed on every rank, 1 otherwise.
 """
 from __future__ import annotations
@@ -196,8 +203,50 @@ def check_cuda_ipc(steps=20):
             "ipc_bytes_by_kind": kinds["ipc"]}
 
 
+def check_cuda_mdbc():
+    from mpi4py import MPI
+
+    import cudasim_helpers as H
+    from sphgraph import Simulation
+    from sphgraph.physics.mdbc import ghost_positions, interface_boxes
+    from test_cuda_mdbc_ranks import SCHEDULE, mpi_scene
+    comm = MPI.COMM_WORLD
+    steps = int(os.environ.get("SPHGRAPH_MDBC_STEPS", "2"))
+    sc = mpi_scene(comm.size)
+    sim = Simulation(sc, backend="numba-cuda", precision="float64", comm="mpi", schedule=SCHEDULE)
+    for _ in range(steps):
+        sim.step()
+    f = sim.frame_arrays()
+    st = sim.contexts[0].state
+    sim.compute.sync_host(st)
+    p = st.particles
+    b = p.kind != 0
+    ghosts = ghost_positions(np.asarray(p.pos[b], np.float64), interface_boxes(sc))
+    near = 0
+    for h in st.halos.values():
+        if h is not None and h.n:
+            fl = np.asarray(h.pos[h.kind == 0], np.float64)
+            if len(fl):
+                d2 = ((ghosts[:, None, :] - fl[None, :, :]) ** 2).sum(-1)
+                near += int((d2.min(axis=1) < (2 * sc.constants.h) ** 2).sum())
+    by = st.extra.get("bytes_by_kind", {})
+    mine = {"rank": comm.rank, "rows": int(p.n), "ghosts_near_halo_fluid": near,
+            "d2h_mdbc": int(by.get("d2h:mdbc", 0)), "h2d_mdbc": int(by.get("h2d:mdbc", 0))}
+    ranks = comm.gather(mine, root=0)
+    if comm.rank != 0:
+        return None
+    i = np.argsort(f["id"])
+    got = ({k: f[k][i] for k in ("id", "position", "velocity", "density")}, sim.time)
+    r = H.diff(sc, H.run(sc, "numba-cpu", steps), got)
+    ok = (r["ids"] and r["time"][0] == r["time"][1] and r["pos"] <= TOL and r["vel"] < 1e-10 and r["rho"] < 1e-6
+          and all(x["ghosts_near_halo_fluid"] > 0 and x["d2h_mdbc"] > 0 and x["h2d_mdbc"] > 0 for x in ranks))
+    return {"check": "cuda-mdbc", **r, "ok": bool(ok), "ranks": comm.size, "steps": steps,
+            "transport": sim.halo_transport, "simulator": os.environ.get("NUMBA_ENABLE_CUDASIM") == "1",
+            "per_rank": ranks}
+
+
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
-          "cuda-ipc": check_cuda_ipc,
+          "cuda-ipc": check_cuda_ipc, "cuda-mdbc": check_cuda_mdbc,
           "equiv2d-migrating": lambda: check_equiv("2d", 2.0), "mdbc2d": check_mdbc,
           "schedules": check_schedules, "conformance": check_conformance}
 

@@ -202,12 +202,14 @@ def mpiexec():
     return exe if os.path.exists(exe) else shutil.which("mpiexec")
 
 
-def run_driver(n, checks, timeout=300):
+def run_driver(n, checks, timeout=300, env=None):
+    """`mpiexec -n n` of tests/mpi_driver.py's `checks` (`env`: variables set on top of
+    this process's); their results by name, each asserted ok."""
     exe = mpiexec()
     if exe is None:
         pytest.skip("no mpiexec (install the mpi extra: pip install sphgraph[mpi])")
     pytest.importorskip("mpi4py")
-    env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", **(env or {})}
     driver = os.path.join(os.path.dirname(__file__), "mpi_driver.py")
     p = subprocess.run([exe, "-n", str(n), sys.executable, driver, *checks], env=env, capture_output=True,
                        text=True, timeout=timeout)

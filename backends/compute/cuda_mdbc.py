@@ -8,15 +8,18 @@ kernel reads the rank's fluid rows through the kind-split cells (the fluid half 
 and writes each boundary row's density, velocity and pressure in place (fluid rows are only
 read: no race).
 
-On several (mock) ranks a ghost near a cut also sums the halos' fluid rows: the sums of each
+On several ranks a ghost near a cut also sums the halos' fluid rows: the sums of each
 boundary row go through a device scratch (`ACC` numbers a row) from the owned rows
 (`k_mdbc_src` with `first`) over each halo (`k_mdbc_src`: a staged halo's uploaded arrays and host grid,
 or an ipc halo's records and planes in the sender's edge slot) to the row's values
 (`k_mdbc_value`). send_mdbc / recv_mdbc then bring the new values of the edge's boundary
 rows to the neighbours' halos, which hold those from before the sender's mdbc: staged, read
-from the device in the edge's order and uploaded into the halo's buffer; ipc, copied again
-into the sender's edge slot (`k_edge_bound`), which the neighbour's halo views, behind an
-event that the neighbour's stream waits for (one process: MPI ranks are refused).
+from the device in the edge's order and uploaded into the halo's buffer (the message is a
+plain array: mock and MPI ranks alike); ipc, copied again into the sender's edge slot
+(`k_edge_bound`), which the neighbour's halo views, behind an event that the neighbour's
+stream waits for. That event cannot leave its process (`MdbcDone` has no wire form), so
+MPI ranks run mDBC with staged halos, their default (`Features.check_backend` refuses
+ipc there at start).
 """
 import copy
 import math  # noqa: F401  (the cloned device functions use it)
@@ -234,7 +237,8 @@ def ghost_table(particles, boxes) -> np.ndarray:
 class MdbcDone(WirePayload):
     """send_mdbc's message with --halo-transport ipc (mock ranks, one process): the new
     boundary values are already in the sender's slot buffer, which the neighbour's halo
-    views; the message carries the event recorded after they were copied there."""
+    views; the message carries the event recorded after they were copied there. It has no
+    wire form (`to_wire` raises): MPI ranks with mDBC are refused ipc at start."""
 
     def __init__(self, event):
         self.event = event
