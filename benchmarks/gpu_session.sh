@@ -258,6 +258,15 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --json "$OUT/buchner_120_mdbc.json" ;;
     # the probe-sum GPU test (one and two mock ranks, 2D and 3D, float64 and float32)
     tests-probes) stage tests_probes 120 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_probe_sums.py ;;
+    # Yeh & Petroff's column force, dry floor against the experiment's wet bed (issue 22 §4), dp 0.005
+    wetbed)   stage wetbed 470 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
+                --json "$OUT/yeh_wetbed.json" --out "$OUT/wetbed_plots" ;;
+    # mDBC on numba-cuda across processes (mpiexec -n 2 / 3, staged halos) and on mock ranks
+    tests-mdbc-ranks) stage tests_mdbc_ranks 200 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
+                tests/test_cuda_mdbc_ranks.py ;;
+    # 4 and 5 mock ranks at 1.3 M against one GPU rank (the halo kernel k_forces included)
+    tests-many-ranks) stage tests_many_ranks 200 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
+                tests/test_cuda_multirank.py ;;
     *) echo "unknown stage $s"; exit 2 ;;
   esac
 done

@@ -403,6 +403,12 @@ def run_body_force(case, dp, prm, backend, precision, overrides):
     after = w[(w[:, 0] >= td[0] + 0.1)]
     e2 = np.interp(after[:, 0], t, fs) - after[:, 1]
     metrics["after_impact_rms_err_rel_peak"] = float(np.sqrt((e2 ** 2).mean()) / scale)
+    # the error in newtons over a fixed window of the measured history, with no time shift
+    # (params.rms_window; default: the whole compared history)
+    w0, w1 = (float(x) for x in prm.get("rms_window", (w[0, 0], w[-1, 0])))
+    win = w[(w[:, 0] >= w0) & (w[:, 0] <= w1)]
+    e3 = np.interp(win[:, 0], t, fs) - win[:, 1]
+    metrics["force_rms_err_N"] = float(np.sqrt((e3 ** 2).mean())) if len(win) else math.inf
     series = {"sphgraph F_x (raw)": (t, f, "-"), f"sphgraph F_x, running mean {k * float(prm['dt_sample']):g} s":
               (t, fs, "-"), "experiment": (data[:, 0], data[:, 1], "o")}
     notes = [f"body: boundary particles in {list(lo)} - {list(hi)}; pressure force of the fluid "

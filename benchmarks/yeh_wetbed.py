@@ -1,0 +1,66 @@
+"""Yeh & Petroff column force: the dry floor of examples/yeh_petroff.toml against the
+experiment's wet bed (examples/yeh_petroff_wetbed.toml), same resolution, same sampler,
+same window, the same DuFort-Frankel diffusion step (issue 22 §4).
+
+    python benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 --json $OUT/yeh_wetbed.json
+
+Each run is the validation case as `sphgraph validate` runs it (`run_case`), with the dry
+case's run and RMS window set to the wet case's (t_end 1.6 s, force_rms_err_N over
+0.3-1.6 s, no time shift; the force is the 0.02 s running mean of the [forces] sampler at
+0.002 s, as both case files say). One JSON line per run as it finishes: the case's metrics,
+particles, steps, wall seconds; `--json` also holds each run's force series. A run that fails
+numerically is recorded with its failure and the sweep goes on. `--out DIR` keeps each case's
+comparison plot.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+
+# case, params over the case's, physics overrides: the dry run takes the wet example's
+# DuFort-Frankel diffusion step (with DualSPHysics' leapfrog the dry run stops at dp 0.0085:
+# docs/validation.md, "Runs that stop for one particle"), so the floor is the one difference
+CASES = {"dry": ("yeh_petroff", {"t_end": 1.6, "rms_window": [0.3, 1.6]}, {"diffusion_time": "dufort-frankel"}),
+         "wet": ("yeh_petroff_wetbed", {}, {})}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", default="numba-cpu")
+    ap.add_argument("--precision", default=None)
+    ap.add_argument("--dp", type=float, default=0.005)
+    ap.add_argument("--runs", default="dry,wet", help="comma list of dry, wet (in that order)")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    from sphgraph.errors import NumericalError
+    from sphgraph.validation.cases import run_case
+    rows = []
+    for key in a.runs.split(","):
+        name, params, overrides = CASES[key]
+        t0 = time.perf_counter()
+        row = {"run": key, "case": name, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default"}
+        try:
+            r = run_case(name, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
+                         overrides=overrides, out=a.out, plot=a.out is not None)
+            row.update(ok=True, metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
+                       checks=[list(c) for c in r.checks],
+                       series={k: [list(map(float, v[0])), list(map(float, v[1]))] for k, v in r.series.items()
+                               if "running mean" in k})
+        except NumericalError as e:
+            row.update(ok=False, failure=str(e), wall_s=time.perf_counter() - t0)
+        except Exception:   # noqa: BLE001 - recorded, the next run goes on
+            row.update(ok=False, failure=traceback.format_exc(limit=3), wall_s=time.perf_counter() - t0)
+        rows.append(row)
+        print(json.dumps({k: v for k, v in row.items() if k != "series"}), flush=True)
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(rows, f)
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
