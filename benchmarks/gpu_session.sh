@@ -261,6 +261,8 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     # Yeh & Petroff's column force, dry floor against the experiment's wet bed (issue 22 §4), dp 0.005
     wetbed)   stage wetbed 470 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
                 --json "$OUT/yeh_wetbed.json" --out "$OUT/wetbed_plots" ;;
+    wetbed-variants) stage wetbed_variants 520 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
+                --runs wet-noslip,wet-zhang --json "$OUT/yeh_wetbed_variants.json" --out "$OUT/wetbed_plots" ;;
     # mDBC on numba-cuda across processes (mpiexec -n 2 / 3, staged halos) and on mock ranks
     tests-mdbc-ranks) stage tests_mdbc_ranks 200 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
                 tests/test_cuda_mdbc_ranks.py ;;

@@ -24,7 +24,12 @@ import traceback
 # DuFort-Frankel diffusion step (with DualSPHysics' leapfrog the dry run stops at dp 0.0085:
 # docs/validation.md, "Runs that stop for one particle"), so the floor is the one difference
 CASES = {"dry": ("yeh_petroff", {"t_end": 1.6, "rms_window": [0.3, 1.6]}, {"diffusion_time": "dufort-frankel"}),
-         "wet": ("yeh_petroff_wetbed", {}, {})}
+         "wet": ("yeh_petroff_wetbed", {}, {}),
+         # bed friction as the issue names it: no-slip mDBC walls (3 layers: the kernel's support)
+         "wet-noslip": ("yeh_petroff_wetbed", {"boundary": "mdbc-noslip", "layers": 3}, {}),
+         # the low-dissipation pressure that met Buchner's targets (docs/validation.md)
+         "wet-zhang": ("yeh_petroff_wetbed", {}, {"integrator": "symplectic", "diffusion_time": "leapfrog",
+                                                   "riemann": "zhang2017", "riemann_eta": 0.3})}
 
 
 def main(argv=None) -> int:
@@ -32,7 +37,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="numba-cpu")
     ap.add_argument("--precision", default=None)
     ap.add_argument("--dp", type=float, default=0.005)
-    ap.add_argument("--runs", default="dry,wet", help="comma list of dry, wet (in that order)")
+    ap.add_argument("--runs", default="dry,wet", help="comma list of " + ", ".join(CASES) + " (run in the order given)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)

@@ -364,7 +364,7 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
 def run_body_force(case, dp, prm, backend, precision, overrides):
     """Force of the flow on a named body (`[forces]` sampler) against a measured force history."""
     from ..probes import ProbeSampler
-    scene = scene_for(case, dp, overrides, end_time=float(prm["t_end"]))
+    scene = scene_for(case, dp, overrides, end_time=float(prm["t_end"]), layers=prm.get("layers"))
     lo, hi = np.array(prm["body_min"], float), np.array(prm["body_max"], float)
     spec = {"interval": 0.0, "points": [], "heights": [], "force_interval": float(prm["dt_sample"]),
             "bodies": [("body", lo, hi)]}
