@@ -263,6 +263,8 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --json "$OUT/yeh_wetbed.json" --out "$OUT/wetbed_plots" ;;
     wetbed-variants) stage wetbed_variants 520 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
                 --runs wet-noslip,wet-zhang --json "$OUT/yeh_wetbed_variants.json" --out "$OUT/wetbed_plots" ;;
+    wetbed-noslip) stage wetbed_noslip 330 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
+                --runs wet-noslip --json "$OUT/yeh_wetbed_noslip.json" --out "$OUT/wetbed_plots" ;;
     # 2D surge front at dp = a/100 (issue 22 §4), the formulations of benchmarks/front_sweep.py
     front-100) stage front_100 300 python3 benchmarks/front_sweep.py --backend numba-cuda --precision float64 \
                 --dp 0.01 --variants all --json "$OUT/front_sweep_100.json" ;;
