@@ -25,6 +25,9 @@ VARIANTS = {
     "dsph": ("dambreak", {}, "dbc", "DualSPHysics' formulation, one wall layer (the case's own)"),
     "noslip-laminar": ("dambreak_walls3", {"laminar_nu": NU_WATER}, "mdbc-noslip",
                        "bed friction: no-slip mDBC walls (3 layers) and water's laminar viscosity"),
+    "noslip-laminar-df": ("dambreak_walls3", {"laminar_nu": NU_WATER, "diffusion_time": "dufort-frankel"},
+                          "mdbc-noslip", "the same with the DuFort-Frankel diffusion step (the leapfrog's "
+                          "odd-even mode stops fine Verlet runs: docs/validation.md)"),
     "zhang-eta0.3-mdbc": ("dambreak_walls3", ZHANG, "mdbc",
                           "zhang2017, eta 0.3, mDBC walls: the formulation that met Buchner's targets"),
     "zhang-eta0.3-noslip": ("dambreak_walls3", dict(ZHANG, laminar_nu=NU_WATER), "mdbc-noslip",
