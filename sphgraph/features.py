@@ -156,6 +156,9 @@ class Features:
             if value != off and key not in have:
                 raise InputError(f"{s.source}: physics.{key}: {value!r} runs with --backend numba-cpu "
                                  f"(or use {key} = \"{off}\"), got {name}")
+        if s.extra.get("motion") and "motion" not in have:
+            raise InputError(f"{s.source}: motion: [[motion]] bodies run with --backend numba-cpu or numba-cuda, "
+                             f"got {name}")
         if ph.shifting != "none" and "shifting" not in have:
             raise InputError(f"{s.source}: physics.shifting: expected \"none\" with --backend {name} (it has "
                              f"no particle shifting; use numba-cpu), got {ph.shifting!r}")
@@ -217,7 +220,8 @@ class Features:
     def move_bodies(self, ctx, stage: int) -> None:
         """The ``motion`` task: bodies at the stage's end time."""
         st = ctx.state
-        self.motion.move(st, st.time + (st.dt if stage >= self.stages else 0.5 * st.dt))
+        mid = stage < self.stages
+        ctx.compute.move_bodies(st, self.motion, st.time + (0.5 * st.dt if mid else st.dt), mid)
 
     def check_begin(self, ctx) -> None:
         """The ``check`` task: the backend's end-of-step check of this rank's rows started;

@@ -379,6 +379,16 @@ class Motion:
         order = np.argsort(ids, kind="stable")
         return cls(bodies, ids[order], np.concatenate(body_of)[order], np.concatenate(refs)[order])
 
+    def table(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) [n, dim] of every moving particle at time ``t``, in the
+        order of ``self.ids``: what a device backend uploads and puts on its rows by id."""
+        pos = np.empty_like(self.ref)
+        vel = np.empty_like(self.ref)
+        for i, body in enumerate(self.bodies):
+            s = self.body_of == i
+            pos[s], vel[s] = body.apply(self.ref[s], t)
+        return pos, vel
+
     def move(self, state, t: float) -> None:
         """Set kind-2 rows of ``state.particles`` to their positions/velocities at time ``t``."""
         p = state.particles

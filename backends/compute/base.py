@@ -19,7 +19,8 @@ class ComputeBackend:
     uses_lanes = False        # the scheduler wraps each task in lane_begin / lane_end (streams)
     # the optional scene features it runs (sphgraph.features refuses the others at start-up):
     # "shifting" (shift_part, shift_displacement, shift_apply), "mdbc" (mdbc), "riemann",
-    # "diffusion_time" (physics options of the force and integration kernels)
+    # "diffusion_time" (physics options of the force and integration kernels), "motion"
+    # (move_bodies: [[motion]] bodies)
     scene_features: frozenset = frozenset()
 
     @classmethod
@@ -220,6 +221,12 @@ class ComputeBackend:
         return cpu_probes.host_sums(state, points, boxes, extra)
 
     # -- scene features (sphgraph.features), for a backend that lists them in scene_features --
+    def move_bodies(self, state, motion, t: float, mid_step: bool) -> None:
+        """The moving bodies' rows (kind 2) of this rank set to their positions and velocities
+        at time `t` (`sphgraph.motion.Motion`); `mid_step`: between a step's force stages (the
+        corrector's forces read them next). The host rows are the truth here."""
+        motion.move(state, t)
+
     def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
         """mDBC (sphgraph.physics.mdbc): each boundary row's density (and, `noslip`, velocity)
         from the fluid at its ghost node: the owned fluid rows and the halos' ("mdbc" in

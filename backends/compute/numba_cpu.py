@@ -27,7 +27,7 @@ def _threads(n: int, rows_per_thread: int) -> None:
 @register("compute", "numba-cpu")
 class NumbaCPU(ComputeBackend):
     default_precision = "float64"
-    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time", "motion"})
 
     def device_name(self) -> str:
         return f"cpu ({numba.config.NUMBA_NUM_THREADS} threads)"

@@ -14,6 +14,7 @@ own module:
     cuda_step_dispatch   CudaStepDispatch: dt_local, integrate, check
     cuda_balance         CudaBalance: fluid_count, axis_extent, fluid_histogram, capacity
     cuda_probes          CudaProbes: probe_bounds, probe_sums ([probes] / [forces] sums)
+    cuda_motion          CudaMotion: move_bodies ([[motion]] bodies' rows set by id)
     cuda_halo            the ipc halo transport (device to device edges)
 
 The kernels themselves are behind cuda_kernels (and cuda_halo_kernels, cuda_shifting).
@@ -36,6 +37,7 @@ from .cuda_force_dispatch import CudaForceDispatch
 from .cuda_halo_dispatch import CudaHaloDispatch
 from .cuda_lanes import CudaLanes, per_thread_default_stream
 from .cuda_mdbc import CudaMdbc
+from .cuda_motion import CudaMotion
 from .cuda_probes import CudaProbes
 from .cuda_memory import COUNTERS, dev_array
 from .cuda_rows import CudaRows
@@ -68,13 +70,13 @@ def _select_device():
 
 @register("compute", "numba-cuda")
 class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, CudaForceDispatch,
-                CudaStepDispatch, CudaBalance, CudaShifting, CudaMdbc, CudaProbes, ComputeBackend):
+                CudaStepDispatch, CudaBalance, CudaShifting, CudaMdbc, CudaProbes, CudaMotion, ComputeBackend):
     """The ComputeBackend on one GPU a rank; its methods come from the mixins above, one
     module each (see the module doc)."""
 
     default_precision = "float32"
     device_resident = True
-    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time", "motion"})
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
