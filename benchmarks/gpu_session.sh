@@ -208,7 +208,7 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 mpiexec -n 4 env NUMBA_NUM_THREADS=4 \$B --comm mpi; done | tee $OUT/cpu_mpi_21.jsonl" ;;
     # one-rank speed of the tree before the house refactors (39916ab, in .before/tree: see
     # benchmarks/house_ab.sh) against this tree: SPHERIC 2 at 4.4 M, 50 timed steps, alternated, 3 rounds
-    house-ab) stage house_ab 110 bash benchmarks/house_ab.sh .before/tree 3 "$OUT/house_ab.jsonl" \
+    house-ab) stage house_ab 200 bash benchmarks/house_ab.sh .before/tree 3 "$OUT/house_ab.jsonl" \
                 examples/spheric2.toml --dp 0.006 --steps 50 --warmup 3 --backend numba-cuda ;;
     # the final tree at 4.4 M: mock 2 and 4 against single, 3 alternated rounds of 52 steps (the step-50
     # balance check inside), the float64 match at 2 and 4 ranks
@@ -265,6 +265,11 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --runs wet-noslip,wet-zhang --json "$OUT/yeh_wetbed_variants.json" --out "$OUT/wetbed_plots" ;;
     wetbed-noslip) stage wetbed_noslip 330 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
                 --runs wet-noslip --json "$OUT/yeh_wetbed_noslip.json" --out "$OUT/wetbed_plots" ;;
+    # the wet bed released by a lifted gate at c = V/sqrt(g h0) = 1 (issue 22 §4; not the experiment's speed)
+    wetbed-gate) stage wetbed_gate 260 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
+                --runs wet-gate-c1 --json "$OUT/yeh_wetbed_gate.json" --out "$OUT/wetbed_gate_plots" ;;
+    # [[motion]] bodies on the device against numba-cpu, float64, one rank and 2 mock ranks
+    tests-motion) stage tests_motion 200 python3 -m pytest -q -m gpu -p no:cacheprovider -rs tests/test_cuda_motion.py ;;
     # 2D surge front at dp = a/100 (issue 22 §4), the formulations of benchmarks/front_sweep.py
     front-100) stage front_100 300 python3 benchmarks/front_sweep.py --backend numba-cuda --precision float64 \
                 --dp 0.01 --variants all --json "$OUT/front_sweep_100.json" ;;

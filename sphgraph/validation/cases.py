@@ -111,11 +111,12 @@ class CaseResult:
         return "\n".join(lines)
 
 
-def run_case(name: str, dp: float | None = None, backend: str = "numba-cpu", precision: str | None = None,
+def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-cpu", precision: str | None = None,
              overrides: dict | None = None, out: str | None = None, plot: bool = True,
              params: dict | None = None) -> CaseResult:
-    """Run validation case `name` (or a case file path); `overrides` are physics fields."""
-    case = load_case(name)
+    """Run validation case `name` (a case name, a case file path or a `Case` built in code, e.g.
+    by :func:`sphgraph.validation.gate.with_gate`); `overrides` are physics fields."""
+    case = name if isinstance(name, Case) else load_case(name)
     dp = float(dp) if dp is not None else case.dp
     prm = dict(case.params, **(params or {}))
     t0 = time.perf_counter()
