@@ -292,39 +292,65 @@ def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, caps
 
 def test_gate_holds_the_column_and_releases_it_underneath():
     """sphgraph.validation.gate.with_gate on the 2D dam break (dp = a/20): the gate's rows sit
-    on the lattice clear of the walls and the fluid, it moves up at c sqrt(g h0), and by t = 0.2 s
-    the water that has left the column passed under its lower edge, none over or through it."""
+    on the lattice clear of the walls and the fluid; closed (its lift starting at 0.2 s) it holds
+    the column while a free column's toe runs 3 dp past its place; then it rises at c sqrt(g h0)
+    and the water that leaves the column passes under its lower edge, none over or through it."""
     from sphgraph.particles import FLUID, MOVING
     from sphgraph.solver import Simulation
     from sphgraph.validation.cases import scene_for
     from sphgraph.validation.gate import G, opening_time, with_gate
-    dp, c = 0.05, 0.35
+    dp, c, t_lift, t_end = 0.05, 0.35, 0.2, 0.4
     base = load_case("dambreak")
     a = float(base.params["a"])
     h0 = 2 * a
     assert abs(opening_time(h0, c) - h0 / (c * math.sqrt(G * h0))) < 1e-12
-    scene = scene_for(with_gate(base, dp, face_x=a, h0=h0, c=c), dp, {}, end_time=0.2)
+    gated = with_gate(base, dp, face_x=a, h0=h0, c=c)
+    assert gated.scene["motion"][-1]["start"] == 0.0
+    gated.scene["motion"][-1]["start"] = t_lift
+    scene = scene_for(gated, dp, {}, end_time=t_end)
     sim = Simulation(scene, invariants=False)
     p = sim.contexts[0].state.particles
-    ids0 = np.asarray(p.id).copy()
     pos0 = np.asarray(p.pos).copy()
     d = np.linalg.norm(pos0[:, None, :] - pos0[None, :, :], axis=-1) + np.eye(len(pos0)) * 1e9
     assert d.min() > 0.99 * dp
-    y0 = {int(i): float(y) for i, y in zip(ids0, pos0[:, 1])}
-    while sim.time < scene.end_time - 1e-12:
+    y0 = {int(i): float(y) for i, y in zip(np.asarray(p.id), pos0[:, 1])}
+
+    def fluid_front(s):
+        q = s.contexts[0].state.particles
+        return q.pos[q.kind == FLUID, 0].max()
+
+    free = Simulation(scene_for(base, dp, {}, end_time=t_lift), invariants=False)
+    while free.time < t_lift - 1e-12:
+        free.step()
+    while sim.time < t_lift - 1e-12:
+        sim.step()
+    assert fluid_front(free) > a + 3 * dp           # a free column's toe has left
+    assert fluid_front(sim) < a + dp                # the closed gate (at a + dp) holds the column
+    while sim.time < t_end - 1e-12:
         sim.step()
     p = sim.contexts[0].state.particles
     pos, kind, ids = np.asarray(p.pos), np.asarray(p.kind), np.asarray(p.id)
     moving = kind == MOVING
     lift = np.array([pos[k, 1] - y0[int(i)] for k, i in zip(np.nonzero(moving)[0], ids[moving])])
     assert moving.sum() == 2 * len(set(np.round(pos[moving, 1], 6)))
-    assert np.allclose(lift, c * math.sqrt(G * h0) * sim.time, atol=1e-9)
+    assert np.allclose(lift, c * math.sqrt(G * h0) * (sim.time - t_lift), atol=1e-9)
     bottom = pos[moving, 1].min()
     out = (kind == FLUID) & (pos[:, 0] > a + 3 * dp)
-    assert out.sum() > 0                           # the gate rose: water left the column
-    assert pos[out, 1].max() < bottom              # under it, not over or through it
-    free = Simulation(scene_for(base, dp, {}, end_time=0.2), invariants=False)
-    while free.time < scene.end_time - 1e-12:
-        free.step()
-    q = free.contexts[0].state.particles
-    assert pos[kind == FLUID, 0].max() < q.pos[q.kind == FLUID, 0].max() - 2 * dp   # held back at first
+    assert out.sum() > 0                            # the gate rose: water left the column
+    assert pos[out, 1].max() < bottom               # under it, not over or through it
+
+
+def test_case_at_the_experiments_size_scales_every_length():
+    """sphgraph.validation.scale.at_size: with no viscosity a Froude-scaled run gives the same
+    Z(T) at any size: the 1 m case at a/20 and Martin & Moyce's 1.125 in column at a/20 agree to
+    round-off accumulated over the run (1.4e-6 measured; a length left unscaled moves it by percents)."""
+    from sphgraph.validation.scale import at_size
+    base = load_case("dambreak")
+    small = at_size(base, 1.125 * 0.0254)
+    assert small.params["a"] == 1.125 * 0.0254 and small.scene["fluid"][0]["max"][1] == 2 * 1.125 * 0.0254
+    big = run_case(base, dp=0.05, plot=False).metrics
+    m = run_case(small, dp=0.05 * small.params["a"], plot=False).metrics
+    for k in ("ko", "mm1", "mm2"):
+        assert abs(m[f"front_mean_rel_err_{k}"] - big[f"front_mean_rel_err_{k}"]) < 1e-5
+    with pytest.raises(ValueError, match="buchner"):
+        at_size(load_case("buchner"), 0.1)
