@@ -178,7 +178,7 @@ def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
     rho_g where the matrix is near singular (|det| < det_min, DualSPHysics' threshold, in 2D
     and 3D: without it a 3D ghost with a few fluid rows at the edge of its support took
     densities of 1e20 and the first step's dt 1e-31), rho0 with no fluid in reach; at least
-    rho0. Velocity -vs / sw with `noslip`, else 0."""
+    rho0. Velocity with `noslip`: minus the tangential part of the ghost's vs / sw, else 0."""
     rho0 = prm[P_RHO0]
     zero = 0.0 * sw
     if sw <= 0.0:
@@ -203,4 +203,19 @@ def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
         r = rho0 + zero
     if not noslip:
         return r, zero, zero, zero
-    return r, -vs[0] / sw, -vs[1] / sw, (-vs[2] / sw) if dim == 3 else zero
+    # No-slip mirrors the ghost's tangential velocity only (x_b - x_g lies along the wall's
+    # normal); the normal part stays the wall's own, zero. Mirroring it too makes fluid that
+    # leaves the wall see the wall leave the other way: the continuity sum books twice the
+    # separation, the row's density falls, and the tension pulls fluid through thin beds into
+    # the wall (Yeh & Petroff's wet bed, docs/validation.md). DualSPHysics' mDBC likewise keeps
+    # the wall's own velocity in the interaction and gives no-slip its tangential velocity.
+    g0 = vs[0] / sw
+    g1 = vs[1] / sw
+    g2 = (vs[2] / sw) if dim == 3 else zero
+    bb = bx0 * bx0 + bx1 * bx1 + bx2 * bx2
+    if bb > 0.0:
+        vn = (g0 * bx0 + g1 * bx1 + g2 * bx2) / bb
+        g0 -= vn * bx0
+        g1 -= vn * bx1
+        g2 -= vn * bx2
+    return r, -g0, -g1, (-g2) if dim == 3 else zero
