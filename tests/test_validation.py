@@ -204,6 +204,30 @@ def test_mdbc_ghost_nodes_mirror_across_the_interface():
     assert np.allclose(g, [[0.5, dp], [0.5, 3 * dp], [dp, 0.3], [1.0 - 2 * dp, 0.3], [dp, dp]])
 
 
+def test_mdbc_noslip_mirrors_the_tangential_velocity_only():
+    """A floor row under a ghost whose fluid moves along the wall and away from it: no-slip
+    gives the row minus the tangential velocity and none of the normal one (a mirrored normal
+    velocity doubles the separation in the continuity sum and pulls fluid into the wall)."""
+    from sphgraph.config import P_RHO0
+    from sphgraph.physics.mdbc import ghost_value
+    prm = np.zeros(64)
+    prm[P_RHO0] = 1000.0
+    for dim, bx, v in ((3, (0.0, 0.0, -0.01), (1.0, 2.0, 0.5)), (2, (0.0, -0.01, 0.0), (1.5, 0.7, 0.0)),
+                       (3, (-0.006, 0.0, -0.008), (0.3, 0.4, 0.6))):
+        A = np.eye(4)
+        b = np.array([1000.0, 0.0, 0.0, 0.0])
+        sw = 2.0
+        vs = np.array(v) * sw
+        r, *u = ghost_value(A, b, np.zeros((4, 4)), np.zeros(4), vs, sw, *bx, dim, prm, 1e-3, True)
+        n = np.array(bx) / np.linalg.norm(bx)
+        vt = np.array(v) - np.dot(v, n) * n
+        assert r == 1000.0
+        assert np.allclose(u[:dim], -vt[:dim], atol=1e-15), (u, vt)
+        assert abs(np.dot(u, n)) < 1e-15
+        r, *u = ghost_value(A, b, np.zeros((4, 4)), np.zeros(4), vs, sw, *bx, dim, prm, 1e-3, False)
+        assert u == [0.0, 0.0, 0.0]
+
+
 def test_mdbc_noslip_removes_the_dbc_wall_offset_in_poiseuille_flow():
     """Same flow, same resolutions: DBC's no-slip sits dp/2 outside the wall (error 0.099 at
     H/20); mDBC with mirrored ghost velocities puts it on the wall (error ~0.011)."""
