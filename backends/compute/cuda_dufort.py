@@ -49,13 +49,6 @@ def _store_ddk(i, final, cc, kk, ddk_):
         ddk_[i] = kk
 
 
-# the production loops with K_a: the candidate loop, then the kernels (ddk_ their last argument)
-_fv_part = with_sum(CF._fv_part, fluid_pair_df, _fv_pair=with_sum(CF._fv_pair, fluid_pair_df))
-KERNELS = ForceVariant(fluid=with_sum(CF.k_forces_fv, fluid_pair_df, _store_ddk, _fv_part=_fv_part),
-                       halo_fluid=with_sum(HK.k_halo_fv, fluid_pair_df, _store_ddk, _fv_part=_fv_part),
-                       binned=with_sum(CF.k_forces, fluid_pair_df, _store_ddk))
-
-
 # ------------------------------------------------------------------- reduction, integration
 def k_reduce_ddk(nparts, n, kind, k0, c0, k1, c1, k2, c2, ddk_):
     """The parts' K_a summed in k_reduce's order, 0 where any part cancelled the diffusion
@@ -104,10 +97,18 @@ def k_reduce_ranged_ddk(n, kind, k0, c0, rng, h1, o1, k1, c1, h2, o2, k2, c2, dd
 
 
 # ------------------------------------------------------------------------------ compilation
+# the production loops with K_a: the candidate loop, then the kernels (ddk_ their last argument)
+_fv_part = with_sum(CF._fv_part, fluid_pair_df, _fv_pair=with_sum(CF._fv_pair, fluid_pair_df))
+KERNELS = ForceVariant(fluid=with_sum(CF.k_forces_fv, fluid_pair_df, _store_ddk, _fv_part=_fv_part),
+                       halo_fluid=with_sum(HK.k_halo_fv, fluid_pair_df, _store_ddk, _fv_part=_fv_part),
+                       binned=with_sum(CF.k_forces, fluid_pair_df, _store_ddk),
+                       binned_name="k_forces_df", plain=(k_reduce_ddk, k_reduce_ranged_ddk))
+
+
 def build(dtype) -> types.SimpleNamespace:
     """k_forces_df (k_forces with K_a; host-binned halos as the sources) and the reductions for
     float type `dtype` (cached)."""
-    return KERNELS.build(dtype, "k_forces_df", (k_reduce_ddk, k_reduce_ranged_ddk))
+    return KERNELS.build(dtype)
 
 
 def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar) -> types.SimpleNamespace:

@@ -267,18 +267,12 @@ def k_band_counts(x, kind, n, tlo, thi, out):
 
 
 _PLAIN = ("k_pick8", "k_halo_pack", "k_reduce_ranged", "k_axis_hist", "k_band_counts")
-_BUILT: dict = {}
 _FORCES: dict = {}
 
 
 def build(dtype) -> types.SimpleNamespace:
     """The element-wise kernels of this module for float type `dtype` (cached)."""
-    dt = np.dtype(dtype)
-    if dt.str not in _BUILT:
-        memo = {}
-        g = globals()
-        _BUILT[dt.str] = types.SimpleNamespace(**{name: CK.kernel(g[name], dt, memo) for name in _PLAIN})
-    return _BUILT[dt.str]
+    return CK.kernel_set(globals(), _PLAIN, dtype)
 
 
 def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar) -> types.SimpleNamespace:

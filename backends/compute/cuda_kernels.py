@@ -11,7 +11,8 @@
 
 This module is their one entry: `build(dtype)` (every kernel but the per-run force
 kernels, as one namespace), `force_kernels(...)` (the fluid and boundary force kernels of
-one run) and the launch sizes.
+one run) and the launch sizes. `kernel_set` compiles and caches the kernels of every
+cuda_* module's `build` (this one's, and those of the feature modules) per float type.
 
 Layout: structure of arrays. Positions are float64 (px, py, pz) for the update; the
 force loop reads positions relative to a per-rank reference point (rx, ry, rz, or the
@@ -36,9 +37,35 @@ SCAN_ITEMS = 8       # elements per thread in the block scan (block covers BLOCK
 MAXREG = 48
 
 _MODULES = (cuda_sort, cuda_migrate, cuda_edges, cuda_forces, cuda_integrate, cuda_reduce)
-_FAST = {"k_forces", "k_count_pairs2"}   # pair loops: fastmath in float32 (build)
-_BUILT: dict = {}
+_ALL = {name: getattr(mod, name) for mod in _MODULES for name in mod.KERNELS}
+_NAMES = tuple(_ALL)
+_FAST = frozenset(("k_forces", "k_count_pairs2"))   # pair loops: fastmath in float32 (build)
+_SETS: dict = {}
 _FORCES: dict = {}
+
+
+def kernel_set(namespace, names: tuple[str, ...], dtype, fastmath=()) -> types.SimpleNamespace:
+    """The kernels `names` of `namespace` (a module's globals(), or a module-level dict
+    name -> plain function: one object for the process's life) compiled for float type
+    `dtype`, as one namespace under the same names; those also in `fastmath` with fastmath
+    on (the simulator has no fastmath: `kernel`).
+
+    Every cuda_* module's `build` goes through this one cache, keyed by (namespace, names,
+    dtype, fastmath), so each set is compiled once a float type and its namespace stays the
+    same object (cuda_launch.fast caches its fast launches per namespace object). The entry
+    keeps the namespace, so its id, part of the key, is never reused. The kernels of a set
+    share one memo (`kernel`: the retargeted copies of the @njit functions they call, by
+    function and float type), so a device function is compiled once a set."""
+    dt = np.dtype(dtype)
+    fast = frozenset(fastmath)
+    key = (id(namespace), names, dt, fast)
+    e = _SETS.get(key)
+    if e is None:
+        memo = {}
+        ns = types.SimpleNamespace(**{name: kernel(namespace[name], dt, memo, fastmath=name in fast)
+                                      for name in names})
+        e = _SETS[key] = (namespace, ns)
+    return e[1]
 
 
 def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
@@ -46,13 +73,7 @@ def build(dtype, fastmath: bool | None = None) -> types.SimpleNamespace:
     applies to the pair loops only."""
     dt = np.dtype(dtype)
     fm = (dt == np.float32) if fastmath is None else bool(fastmath)
-    key = (dt.str, fm)
-    if key not in _BUILT:
-        memo = {}
-        _BUILT[key] = types.SimpleNamespace(**{
-            name: kernel(getattr(mod, name), dt, memo, fastmath=fm and name in _FAST)
-            for mod in _MODULES for name in mod.KERNELS})
-    return _BUILT[key]
+    return kernel_set(_ALL, _NAMES, dt, _FAST if fm else ())
 
 
 def force_kernels(dtype, prm, kernel_id, ddt_kind, laminar, fastmath: bool | None = None,

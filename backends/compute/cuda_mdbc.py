@@ -211,17 +211,12 @@ def k_edge_bound(start, f0, nch, ncells, pos4, vel4, cap, o_pos4, o_vel4):
         i += cuda.gridsize(1)
 
 
-_BUILT: dict = {}
+_KERNELS = ("k_mdbc", "k_mdbc_src", "k_mdbc_value", "k_edge_bound")
 
 
 def build(dtype) -> types.SimpleNamespace:
-    dt = np.dtype(dtype)
-    if dt.str not in _BUILT:
-        _BUILT[dt.str] = types.SimpleNamespace(
-            k_mdbc=CK.kernel(k_mdbc, dt, {}), k_mdbc_src=CK.kernel(k_mdbc_src, dt, {}),
-            k_mdbc_value=CK.kernel(k_mdbc_value, dt, {}),
-            k_edge_bound=CK.kernel(k_edge_bound, dt, {}))
-    return _BUILT[dt.str]
+    """The mDBC kernels for float type `dtype` (cached)."""
+    return CK.kernel_set(globals(), _KERNELS, dtype)
 
 
 def ghost_table(particles, boxes) -> np.ndarray:

@@ -60,17 +60,11 @@ def k_set_moving(n, dim, kind, ids, slot, nslot, tpos, tvel, px, py, pz, vel4,
 
 
 _KERNELS = ("k_set_moving",)
-_BUILT: dict = {}
 
 
 def build(dtype) -> types.SimpleNamespace:
     """The motion kernel for float type `dtype` (cached)."""
-    key = np.dtype(dtype).str
-    if key not in _BUILT:
-        memo = {}
-        g = globals()
-        _BUILT[key] = types.SimpleNamespace(**{name: CK.kernel(g[name], dtype, memo) for name in _KERNELS})
-    return _BUILT[key]
+    return CK.kernel_set(globals(), _KERNELS, dtype)
 
 
 class _MotionBuffers:

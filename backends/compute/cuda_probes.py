@@ -267,16 +267,11 @@ def k_extra_forces(m, rows, px, py, pz, vel4, start, o0, o1, o2, inv_size, n0, n
 
 KERNELS = ("k_column_zrange", "k_point_sums", "k_row_forces", "k_box_partials", "k_sum_partials", "k_extent",
            "k_pick_edges", "k_extra_forces")
-_BUILT: dict = {}
 
 
 def build() -> types.SimpleNamespace:
     """The kernels, float64 sums (built once)."""
-    if not _BUILT:
-        memo = {}
-        g = globals()
-        _BUILT["k"] = types.SimpleNamespace(**{name: CK.kernel(g[name], np.float64, memo) for name in KERNELS})
-    return _BUILT["k"]
+    return CK.kernel_set(globals(), KERNELS, np.float64)
 
 
 class CudaProbes:

@@ -115,17 +115,11 @@ def k_shift_move(n, dim, px, py, pz, sx, sy, sz):
 
 
 _KERNELS = ("k_shift_sums", "k_shift_add_part", "k_shift_final", "k_shift_move")
-_BUILT: dict = {}
 
 
 def build(dtype) -> types.SimpleNamespace:
     """The shifting kernels for float type `dtype` (cached)."""
-    key = np.dtype(dtype).str
-    if key not in _BUILT:
-        memo = {}
-        g = globals()
-        _BUILT[key] = types.SimpleNamespace(**{name: CK.kernel(g[name], dtype, memo) for name in _KERNELS})
-    return _BUILT[key]
+    return CK.kernel_set(globals(), _KERNELS, dtype)
 
 
 # ------------------------------------------------------------------------------- backend methods

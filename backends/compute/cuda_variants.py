@@ -182,14 +182,18 @@ def with_sum(f, pair, store=None, **subs):
 class ForceVariant:
     """The force kernels of one variant, compiled and cached as the production ones:
     `fluid` / `halo_fluid` (copies of k_forces_fv / k_halo_fv) with the production boundary
-    kernels k_forces_bv / k_halo_bv, and `binned` (a copy of k_forces, host-binned halos)."""
+    kernels k_forces_bv / k_halo_bv, and `binned` (a copy of k_forces, host-binned halos)
+    under the name `binned_name`, with the variant's element-wise kernels `plain`
+    (functions, under their own names) beside it (`build`)."""
 
-    def __init__(self, fluid, halo_fluid, binned):
+    def __init__(self, fluid, halo_fluid, binned, binned_name="k_forces", plain=()):
         self.fluid = fluid
         self.halo_fluid = halo_fluid
         self.binned = binned
         self._runs: dict = {}
-        self._built: dict = {}
+        self._fast = (binned_name,)
+        self._kernels = {binned_name: binned, **{f.__name__: f for f in plain}}
+        self._names = tuple(self._kernels)
 
     def _compile(self, fluid, boundary, dtype, prm, kernel_id, ddt_kind, laminar):
         dt = np.dtype(dtype)
@@ -214,14 +218,9 @@ class ForceVariant:
             self._runs[key] = (ns, types.SimpleNamespace(k_halo_fv=ns.k_forces_f, k_halo_bv=ns.k_forces_b))
         return self._runs[key][1]
 
-    def build(self, dtype, name="k_forces", plain=()) -> types.SimpleNamespace:
-        """The copy of k_forces as `name`, fastmath in float32 as cuda_kernels.build compiles
-        k_forces, and the element-wise kernels `plain` (functions) under their own names, for
-        float type `dtype` (cached)."""
+    def build(self, dtype) -> types.SimpleNamespace:
+        """The copy of k_forces as `binned_name`, fastmath in float32 as cuda_kernels.build
+        compiles k_forces, and the element-wise kernels `plain`, for float type `dtype`
+        (cached)."""
         dt = np.dtype(dtype)
-        if dt.str not in self._built:
-            memo = {}
-            self._built[dt.str] = types.SimpleNamespace(
-                **{name: CK.kernel(self.binned, dt, memo, fastmath=dt == np.float32)},
-                **{f.__name__: CK.kernel(f, dt, memo) for f in plain})
-        return self._built[dt.str]
+        return CK.kernel_set(self._kernels, self._names, dt, self._fast if dt == np.float32 else ())
