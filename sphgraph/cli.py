@@ -143,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="physics override, e.g. --set integrator=symplectic (repeatable)")
     p.add_argument("--boundary", choices=["dbc", "mdbc", "mdbc-noslip"], default=None,
-                   help="wall treatment (default: the case's; mDBC: numba-cpu, one rank)")
+                   help="wall treatment (default: the case's; mDBC on any backend and rank count)")
     p.add_argument("--out", default="out/validate", help="directory of the comparison plot PNG")
 
     p = sub.add_parser("study", help="sweep resolution and methods of a case: error against wall time "

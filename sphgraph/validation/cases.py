@@ -158,7 +158,7 @@ def scene_for(case: Case, dp: float, overrides: dict, **top):
 
 def _sim(scene, backend, precision, boundary="dbc", **kw):
     """A Simulation; boundary "mdbc" / "mdbc-noslip" sets the scene's `[physics] boundary`,
-    which adds the `mdbc` task before each force stage (numba-cpu, one rank), as `sphgraph run` does."""
+    which adds the `mdbc` task before each force stage, as `sphgraph run` does."""
     from ..solver import Simulation
     if boundary != "dbc":
         scene = scene.with_overrides(boundary=boundary)
