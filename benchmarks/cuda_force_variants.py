@@ -59,8 +59,8 @@ def _fv_pair_cut(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, v
     r2 = drx * drx + dry * dry + drz * drz
     if not (r2 > support2 or r2 < 1e-18):
         vxb, vyb, vzb, rho_b = load4(vel4, j4)
-        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
-                                                inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
+        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, vxb, vyb, vzb,
+                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
                                                 ddt_kind, laminar)
         axx += fx
         ayy += fy
@@ -184,8 +184,9 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                     dvy = vya - vel4[j4 + 1]
                     dvz = vza - vel4[j4 + 2]
                     fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                        drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, vel4[j4 + 3], p_a, pos4[j4 + 3],
-                        mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
+                        drx, dry, drz, r2, dvx, dvy, dvz, vel4[j4], vel4[j4 + 1], vel4[j4 + 2], rho_a, inv_rho_a,
+                        vel4[j4 + 3], p_a, pos4[j4 + 3], mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind,
+                        laminar)
                     axx += fx
                     ayy += fy
                     azz += fz

@@ -71,7 +71,8 @@ def test_with_sum_adds_k_a_and_leaves_the_production_sums():
         plain = CF._fv_pair(*a, *sums)
         got = pair_df(*a, *sums, 2.0)
         d = (0.04 - 0.01, 0.05 - 0.02, 0.03 - 0.0)
-        k_ab = fluid_pair_df(*d, d[0] * d[0] + d[1] * d[1] + d[2] * d[2], 0.2 - 0.1, 0.1 + 0.2, 0.0 - 0.05, 1000.5,
+        k_ab = fluid_pair_df(*d, d[0] * d[0] + d[1] * d[1] + d[2] * d[2], 0.2 - 0.1, 0.1 + 0.2, 0.0 - 0.05,
+                             0.1, -0.2, 0.05, 1000.5,
                              1.0 / 1000.5, 1001.0, 2000.0, 1500.0, prm[P_MASS_F], b_bound, prm, kid, ddtk, 0)[-1]
         assert got[:7] == plain, (got, plain)
         assert got[7] == 2.0 + k_ab

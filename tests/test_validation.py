@@ -228,6 +228,44 @@ def test_mdbc_noslip_mirrors_the_tangential_velocity_only():
         assert u == [0.0, 0.0, 0.0]
 
 
+def test_noslip_wall_velocity_reaches_the_viscous_terms_only():
+    """A fluid row above an mDBC no-slip wall row that carries the no-slip velocity: with
+    P_WALL_NOSLIP the continuity term is the one of a still wall (v_b = 0), the laminar and
+    artificial viscosity and the dt term see v_b (they differ from the still wall's); without
+    it, as for DBC's moving walls, every term sees v_b. Same for riemann_pair; a fluid b
+    is never touched."""
+    from sphgraph.config import O_KERNEL, P_WALL_NOSLIP, PhysicsConfig, derive
+    from sphgraph.physics.interact import fluid_pair, riemann_pair
+    c = derive(PhysicsConfig(boundary="mdbc-noslip", laminar_nu=1e-3, visc_alpha=0.1), dim=3, dp=0.01, hswl=0.3)
+    prm, kid = c.prm, int(c.opt[O_KERNEL])
+    assert prm[P_WALL_NOSLIP] == 1.0
+    assert derive(PhysicsConfig(boundary="mdbc"), dim=3, dp=0.01, hswl=0.3).prm[P_WALL_NOSLIP] == 0.0
+    r = np.array([0.004, -0.003, 0.009])
+    va, vb = np.array([0.8, 0.1, -0.3]), np.array([-0.7, 0.2, 0.0])
+    z = np.zeros(3)
+
+    def fp(v_b, bound=True, p=prm):
+        dv = va - v_b
+        return np.array(fluid_pair(*r, float(r @ r), *dv, *v_b, 1001.0, 1 / 1001.0, 1000.5, 300.0, 250.0,
+                                   c.mass_bound, bound, p, kid, 0, True), float)
+
+    def rp(v_b, bound=True, p=prm):
+        dv = va - v_b
+        return np.array(riemann_pair(*r, float(r @ r), *dv, *v_b, 1001.0, 1 / 1001.0, 1000.5, 300.0, 250.0,
+                                     c.mass_bound, bound, p, kid, True), float)
+    moving, still = fp(vb), fp(z)
+    assert moving[3] == pytest.approx(still[3], rel=1e-14)          # continuity: the still wall's
+    assert abs(moving[0] - still[0]) > 1e-3 * abs(still[0])         # viscosity: the no-slip velocity's
+    assert moving[6] != still[6]                                    # the dt term too
+    off = prm.copy()
+    off[P_WALL_NOSLIP] = 0.0
+    assert fp(vb, p=off)[3] != pytest.approx(still[3], rel=1e-6)   # DBC: the wall's velocity counts
+    assert np.array_equal(fp(vb, bound=False), fp(vb, bound=False, p=off))
+    rm, rs = rp(vb), rp(z)
+    assert rm[3] == pytest.approx(rs[3], rel=1e-14)
+    assert abs(rm[0] - rs[0]) > 1e-6 * abs(rs[0])
+
+
 def test_mdbc_noslip_removes_the_dbc_wall_offset_in_poiseuille_flow():
     """Same flow, same resolutions: DBC's no-slip sits dp/2 outside the wall (error 0.099 at
     H/20); mDBC with mirrored ghost velocities puts it on the wall (error ~0.011)."""
@@ -274,6 +312,7 @@ def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, caps
     the same particles, bit for bit, as a user task with the same body placed by a schedule
     on the DBC scene, and as the runner's `boundary` param; unsupported runs are refused at
     start (exit 2, one line, nothing written)."""
+    from sphgraph.config import P_WALL_NOSLIP
     from sphgraph.features import Mdbc
     from sphgraph.graph.task import UserTask
     from sphgraph.io import read_frame
@@ -291,6 +330,8 @@ def test_scene_boundary_mdbc_noslip_runs_like_the_validation_path(tmp_path, caps
                     writes=("particles", "cells"), per_stage=True)
     order = ["build_cells", "user_mdbc", "forces_interior", "dt_local", "dt_allreduce", "integrate"]
     old = Simulation(dbc, schedule={"format": 1, "order": order}, user_tasks=[user], invariants=False)
+    for ctx in old.contexts:   # the wall rows' no-slip velocity is for the viscous terms only (the scene's flag)
+        ctx.state.prm[P_WALL_NOSLIP] = 1.0
     runner = _sim(dbc, "numba-cpu", None, boundary="mdbc-noslip")
     plain = Simulation(dbc, invariants=False)
     for s in (old, runner, plain):

@@ -80,7 +80,8 @@ def forces(dpos, dvel, drho, dpress, dkind,
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
                             fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
+                                svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
                             axx += fx
                             ayy += fy
@@ -162,7 +163,8 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
                             fx, fy, fz, fr, fv = riemann_pair(
-                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
+                                svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, laminar)
                             axx += fx
                             ayy += fy
@@ -246,7 +248,8 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
                             fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                                drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
+                                svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
                             axx += fx
                             ayy += fy

@@ -113,8 +113,9 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
                     dvz = (vza - svz[j]) if dim == 3 else zero
                     if a_fluid:
                         fx, fy, fz, fr, fd, fc, fv = fluid_pair(
-                            drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, srho[j], p_a, spress[j],
-                            mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind, laminar)
+                            drx, dry, drz, r2, dvx, dvy, dvz, svx[j], svy[j], svz[j] if dim == 3 else zero, rho_a,
+                            inv_rho_a, srho[j], p_a, spress[j], mb if b_bound else mf, b_bound, prm, kernel_id,
+                            ddt_kind, laminar)
                         axx += fx
                         ayy += fy
                         azz += fz
@@ -211,8 +212,8 @@ def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, 
     r2 = drx * drx + dry * dry + drz * drz
     if not r2 > support2:
         vxb, vyb, vzb, rho_b = load4(vel4, j4)
-        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, rho_a,
-                                                inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
+        fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, vxb, vyb, vzb,
+                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
                                                 ddt_kind, laminar)
         axx += fx
         ayy += fy

@@ -26,8 +26,8 @@ def enabled(state) -> bool:
 
 
 @njit(inline="always")
-def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
-                       b_bound, prm, kernel, ddt_kind, laminar):
+def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b,
+                       mass_b, b_bound, prm, kernel, ddt_kind, laminar):
     """`riemann_pair` as `fluid_pair` returns: (ax, ay, az, ar, ddt, cancel, visc) with no
     diffusion term (ddt 0) and no cancel (the Riemann term carries its own dissipation). The
     row itself adds nothing: k_forces_fv's loop has no r^2 < 1e-18 cut (every term of
@@ -35,8 +35,8 @@ def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b
     if r2 < 1e-18:
         z = 0.0 * rho_a
         return z, z, z, z, z, 0, z
-    ax, ay, az, ar, visc = riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b,
-                                        mass_b, b_bound, prm, kernel, laminar)
+    ax, ay, az, ar, visc = riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b,
+                                        p_a, p_b, mass_b, b_bound, prm, kernel, laminar)
     return ax, ay, az, ar, 0.0 * ar, 0, visc
 
 

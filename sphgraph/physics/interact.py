@@ -43,6 +43,14 @@ momentum     dv_a/dt   += -m_b 2 P*/(rho_a rho_b) grad W
 The P* dissipation replaces the artificial viscosity and the U* pressure jump the density
 diffusion (neither is added for these pairs; a DBC boundary b adds no pressure jump, as
 SPHinXsys' wall form has none); the laminar term is kept.
+mDBC no-slip walls (`[physics] boundary = "mdbc-noslip"`, prm P_WALL_NOSLIP = 1): a boundary
+b's velocity is the mirrored tangential fluid velocity its ghost sees (physics.mdbc), which the
+viscous terms (artificial, laminar, the dt term) take; the continuity equation and the
+Riemann term's compression take the wall's own velocity, zero (mDBC's walls do not move), as
+DualSPHysics' mDBC does (the no-slip velocity goes to the viscosity only). In the continuity
+sum the mirrored velocity's variation along the wall reads as a compression or expansion of
+the fluid next to it: behind Yeh & Petroff's surge front over the wet bed it lowered the rows'
+density and pulled fluid into the floor (docs/validation.md).
 viscous dt term  max over b of h (v_ab . r_ab)/(r^2 + eta^2) (DualSPHysics ViscDt); the pair
              functions return it without the factor h, which the callers apply to the
              maximum (h > 0, so max(h x) = h max(x) to the bit; one multiply a pair less).
@@ -54,7 +62,7 @@ import math
 from numba import njit
 
 from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_DDT_KCM, P_VISC, P_VISC_BOUND, P_YMAX, D_NONE, D_MOLTENI,
+                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_DDT_KCM, P_VISC, P_VISC_BOUND, P_WALL_NOSLIP, P_YMAX, D_NONE, D_MOLTENI,
                       D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
@@ -80,9 +88,20 @@ def gravity_dot(drx, dry, drz, prm, s):
 
 
 @njit(inline="always", cache=True)
-def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
+def wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_bound, prm):
+    """v_ab . r_ab for the continuity equation: `dot` itself, or with b an mDBC no-slip wall
+    row (velocity vb: its no-slip velocity, for the viscous terms only) v_a . r_ab, the wall's
+    own velocity being zero (module docstring). On the GPU prm is constant: the test folds
+    away where the scene has no such walls."""
+    if b_bound and prm[P_WALL_NOSLIP] != 0.0:
+        return dot + (vxb * drx + vyb * dry + vzb * drz)
+    return dot
+
+
+@njit(inline="always", cache=True)
+def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
                b_bound, prm, kernel, ddt_kind, laminar):
-    """Contribution of b to fluid particle a.
+    """Contribution of b to fluid particle a (v_ab = dv, v_b = vb).
 
     Returns (ax, ay, az, ar, ddt, cancel, visc) where `cancel` is 1 when b
     switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term / h.
@@ -96,6 +115,8 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
     # Factors of a alone (m_b rho_a, -m_b / rho_a) first: the kernels hoist them out of the
     # loop over b, and with fastmath a product is not reassociated for them
     ar = (mass_b * rho_a) * (fac * dot) * inv_rho_b
+    if b_bound and prm[P_WALL_NOSLIP] != 0.0:   # the still wall's continuity (wall_dot): v_a . r_ab
+        ar += (mass_b * rho_a) * (fac * (vxb * drx + vyb * dry + vzb * drz)) * inv_rho_b
     dot_rr2 = dot * inv_r2e
     coef = (p_a + p_b) * (-mass_b * inv_rho_a) * inv_rho_b
     if dot < 0.0:
@@ -136,8 +157,8 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p
 
 
 @njit(inline="always", cache=True)
-def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b, b_bound, prm,
-                 kernel, laminar):
+def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
+                 b_bound, prm, kernel, laminar):
     """Contribution of b to fluid particle a with the Riemann-solver pressure term (module
     docstring). Returns (ax, ay, az, ar, visc), visc the ViscDt term / h. A boundary b (DBC)
     adds no U* pressure jump to the continuity: its pressure is the wall's reaction, not a
@@ -147,10 +168,11 @@ def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a,
     inv_r2e = 1.0 / (r2 + prm[P_ETA2])
     r = math.sqrt(r2)
     dot = dvx * drx + dvy * dry + dvz * drz          # v_ab . r_ab = -r (U_L - U_R)
-    du = -dot / r                                    # U_L - U_R (> 0: the pair is compressed)
+    dot_c = wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_bound, prm)
+    du = -dot_c / r                                  # U_L - U_R (> 0: the pair is compressed)
     rc = prm[P_RHO0C0]
     jump = 0.0 * dot if b_bound else r * (p_a - p_b) / rc
-    ar = (mass_b * rho_a) * fac * (dot + jump) * inv_rho_b
+    ar = (mass_b * rho_a) * fac * (dot_c + jump) * inv_rho_b
     beta = min(prm[P_RIEMANN_ETA] * max(du, 0.0) / prm[P_C0], 1.0)
     p2 = p_a + p_b + rc * beta * du                  # 2 P*
     cf = p2 * (-mass_b * inv_rho_a) * inv_rho_b * fac
@@ -173,12 +195,13 @@ def diffusion_coef(r2, fac, rho_b, mass_b, prm):
 
 
 @njit(inline="always", cache=True)
-def fluid_pair_df(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
+def fluid_pair_df(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
                   b_bound, prm, kernel, ddt_kind, laminar):
     """`fluid_pair` and the pair's k_ab (`diffusion_coef`) for the DuFort-Frankel step: a fluid
     b adds k_ab to K_a, a boundary b nothing (where it cancels a's diffusion, K_a is zeroed
     with the term when the parts are summed). Returns fluid_pair's tuple, then k_ab."""
-    ax, ay, az, ar, ddt, cancel, visc = fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, inv_rho_a, rho_b,
+    ax, ay, az, ar, ddt, cancel, visc = fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a,
+                                                   inv_rho_a, rho_b,
                                                    p_a, p_b, mass_b, b_bound, prm, kernel, ddt_kind, laminar)
     k = 0.0 * ar if b_bound else diffusion_coef(r2, grad_factor(r2, prm, kernel), rho_b, mass_b, prm)
     return ax, ay, az, ar, ddt, cancel, visc, k

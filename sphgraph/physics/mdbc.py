@@ -12,10 +12,11 @@ extrapolated back to b:
     rho_b = max(rho0, rho_g + (x_b - x_g) . grad rho_g)
 
 (Shepard's rho_g = sum m W / sum V W where the matrix is singular, rho0 with no fluid in
-reach). With `slip = False` the boundary particle also takes the mirrored fluid velocity
-v_b = -v_g (no-slip at the interface, DualSPHysics SlipMode "no-slip"), which the
-viscous terms see; DBC's default is v_b = 0 on the particle itself, i.e. no-slip dp/2
-outside the wall.
+reach). With no-slip the boundary particle also takes the mirrored tangential fluid velocity
+v_b = -v_g,t (no-slip at the interface, DualSPHysics SlipMode "no-slip"), which the viscous
+terms see; the continuity equation keeps the wall's own velocity, zero
+(`physics.interact.wall_dot`). DBC's default is v_b = 0 on the particle itself, i.e. no-slip
+dp/2 outside the wall.
 
 Normals are implied by the geometry: ghosts come from the scene's boundary entries (tank
 inner faces, wall planes, obstacle boxes; cylinders, slopes and STL meshes through
@@ -204,11 +205,10 @@ def ghost_value(A, b, A2, b2, vs, sw, bx0, bx1, bx2, dim, prm, det_min, noslip):
     if not noslip:
         return r, zero, zero, zero
     # No-slip mirrors the ghost's tangential velocity only (x_b - x_g lies along the wall's
-    # normal); the normal part stays the wall's own, zero. Mirroring it too makes fluid that
-    # leaves the wall see the wall leave the other way: the continuity sum books twice the
-    # separation, the row's density falls, and the tension pulls fluid through thin beds into
-    # the wall (Yeh & Petroff's wet bed, docs/validation.md). DualSPHysics' mDBC likewise keeps
-    # the wall's own velocity in the interaction and gives no-slip its tangential velocity.
+    # normal), as DualSPHysics' mDBC gives its viscosity the tangential part; the fluid rows'
+    # continuity sums take the wall's own velocity instead (interact.wall_dot): with the
+    # mirrored velocity in them, fluid leaving the wall, or slowing along it, read as an
+    # expansion, and Yeh & Petroff's wet bed was pulled into the floor (docs/validation.md).
     g0 = vs[0] / sw
     g1 = vs[1] / sw
     g2 = (vs[2] / sw) if dim == 3 else zero
