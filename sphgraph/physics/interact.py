@@ -115,7 +115,10 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a
     # Factors of a alone (m_b rho_a, -m_b / rho_a) first: the kernels hoist them out of the
     # loop over b, and with fastmath a product is not reassociated for them
     ar = (mass_b * rho_a) * (fac * dot) * inv_rho_b
-    if b_bound and prm[P_WALL_NOSLIP] != 0.0:   # the still wall's continuity (wall_dot): v_a . r_ab
+    # a still no-slip wall's continuity, v_a . r_ab (wall_dot), added as a term of its own:
+    # folding it into `dot` let the CPU's fastmath regroup the default path (the example
+    # digests moved); added, the path without such walls compiles as before
+    if b_bound and prm[P_WALL_NOSLIP] != 0.0:
         ar += (mass_b * rho_a) * (fac * (vxb * drx + vyb * dry + vzb * drz)) * inv_rho_b
     dot_rr2 = dot * inv_r2e
     coef = (p_a + p_b) * (-mass_b * inv_rho_a) * inv_rho_b
