@@ -265,6 +265,8 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --runs wet-noslip,wet-zhang --json "$OUT/yeh_wetbed_variants.json" --out "$OUT/wetbed_plots" ;;
     wetbed-noslip) stage wetbed_noslip 560 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
                 --runs wet-noslip --json "$OUT/yeh_wetbed_noslip.json" --out "$OUT/wetbed_plots" ;;
+    wetbed-noslip-laminar) stage wetbed_noslip_laminar 560 python3 benchmarks/yeh_wetbed.py --backend numba-cuda \
+                --dp 0.005 --runs wet-noslip-laminar --json "$OUT/yeh_wetbed_noslip_laminar.json" --out "$OUT/wetbed_plots" ;;
     # the wet bed released by a lifted gate at c = V/sqrt(g h0) = 1 (issue 22 §4; not the experiment's speed)
     wetbed-gate) stage wetbed_gate 260 python3 benchmarks/yeh_wetbed.py --backend numba-cuda --dp 0.005 \
                 --runs wet-gate-c1 --json "$OUT/yeh_wetbed_gate.json" --out "$OUT/wetbed_gate_plots" ;;

@@ -27,6 +27,10 @@ CASES = {"dry": ("yeh_petroff", {"t_end": 1.6, "rms_window": [0.3, 1.6]}, {"diff
          "wet": ("yeh_petroff_wetbed", {}, {}),
          # bed friction as the issue names it: no-slip mDBC walls (3 layers: the kernel's support)
          "wet-noslip": ("yeh_petroff_wetbed", {"boundary": "mdbc-noslip", "layers": 3}, {}),
+         # the same with water's laminar viscosity (1.0e-6 m^2/s at 20 C) beside the artificial one,
+         # as benchmarks/front_sweep.py's noslip-laminar runs take it in 2D
+         "wet-noslip-laminar": ("yeh_petroff_wetbed", {"boundary": "mdbc-noslip", "layers": 3},
+                                {"laminar_nu": 1.0e-6}),
          # the low-dissipation pressure that met Buchner's targets (docs/validation.md)
          "wet-zhang": ("yeh_petroff_wetbed", {}, {"integrator": "symplectic", "diffusion_time": "leapfrog",
                                                    "riemann": "zhang2017", "riemann_eta": 0.3}),
