@@ -1,10 +1,11 @@
 """Wave generation and absorption (issue 9 §1/§2).
 
-* The regular wave's 5 % check (issue 9 §8: the piston flume at dp 0.015 to 8 s, second-order
-  generation, no artificial viscosity, water's laminar viscosity; height and period at one
-  wavelength within 5 % of the paddle's) is an 8 s run of some 200 s, so it lives with the
-  benchmarks to keep this suite within its 15 minutes: `python benchmarks/wave_flume.py --dp 0.015
-  --order 2 --visc-alpha 0 --laminar-nu 1e-6 --end 8 --check` (exit 1 outside 5 %; BENCHMARKS.md §7).
+* `test_flume_regular_wave_within_5_percent_at_one_wavelength` (issue 9 §8): the piston
+  flume of benchmarks/wave_flume.py (H = 0.08 m, T = 1 s, d = 0.3 m, dp = 0.015, second-order
+  generation, no artificial viscosity, water's laminar viscosity) to 6.5 s; at one wavelength
+  from the paddle the zero up-crossing height and the period of the full-height waves are
+  within 5 % of the target (measured -4.3 % and < 0.5 %; numbers and the other settings in
+  BENCHMARKS.md §7 and docs/features.md).
 * damping zones: the relaxation factor, and a zone takes the kinetic energy out of the
   fluid inside it while the rest keeps moving; a zone across two slabs gives the same
   particles on 1 and 3 mock ranks; a flume's zone reflects < 5 % of a regular wave (the
@@ -66,6 +67,27 @@ def test_damping_zone_removes_kinetic_energy_in_the_zone():
         ke[damp] = (e[x > 1.6].sum(), e[x < 0.8].sum())
     assert ke[True][0] < 0.25 * ke[False][0]      # the zone is (nearly) still
     assert ke[True][1] > 0.7 * ke[False][1]       # away from it the flow goes on
+
+
+@pytest.mark.slow
+def test_flume_regular_wave_within_5_percent_at_one_wavelength():
+    """Issue 9: the mean zero up-crossing height and period one wavelength from the paddle
+    (dp 0.015, order-2 stroke, no artificial viscosity) within 5 % of the paddle's H and T,
+    over waves 3-6 (to 8 s) as measured in docs/features.md. The particles' chaos makes the
+    height swing ~2 % from wave to wave and with round-off: with only two waves (to 6.5 s)
+    the mean moved between -3.9 and -6.4 % under changes of the pair arithmetic alone
+    (positions 1e-16 apart after 10 steps, 3e-11 after 3000); over four waves -4.2 %."""
+    import wave_flume
+    end = 8.0
+    r = wave_flume.flume(dp=0.015, end_time=end, height=0.08, period=1.0, depth=0.3, order=2,
+                         physics={"visc_alpha": 0.0, "laminar_nu": 1e-6})
+    g = next(iter(r["eta"]))                       # one wavelength from the paddle's face
+    assert g == pytest.approx(1.5 * 0.015 + r["L"])
+    cg = waves.group_velocity(1.0, 0.3)
+    st = waves.wave_stats(r["t"], r["eta"][g], r["L"] / cg + 2.0, end)   # after the ramp's waves
+    assert len(st["heights"]) >= 2
+    assert st["period"] == pytest.approx(1.0, rel=0.05)
+    assert st["height"] == pytest.approx(0.08, rel=0.05)
 
 
 def test_two_gauge_separation_recovers_a_known_reflection():
