@@ -34,6 +34,7 @@ def scene(dp: float, wet: bool) -> dict:
 def run(dp: float, wet: bool, precision: str, t_end: float = 0.45) -> dict:
     from sphgraph.scene import Scene
     from sphgraph.solver import Simulation
+    from sphgraph.validation.cases import _arrays
     sim = Simulation(Scene.from_dict(scene(dp, wet), source="bore_arrival"), backend="numba-cpu",
                      precision=precision)
     t0 = time.perf_counter()
@@ -41,8 +42,8 @@ def run(dp: float, wet: bool, precision: str, t_end: float = 0.45) -> dict:
     while sim.time < t_end:
         sim.step()
         if sim.step_count % 20 == 0:
-            p = sim.contexts[0].state.particles
-            pos = p.pos[p.kind == 0]
+            arr = _arrays(sim)
+            pos = arr["position"][arr["kind"] == 0]
             ts.append(float(sim.time))
             xs.append(float(pos[pos[:, 1] > ABOVE_Z, 0].max()))
     ts, xs = np.array(ts), np.array(xs)
