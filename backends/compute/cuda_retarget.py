@@ -23,6 +23,9 @@ from numba import cuda, njit
 from numba.core.dispatcher import Dispatcher
 
 SIMULATOR = os.environ.get("NUMBA_ENABLE_CUDASIM", "0") == "1"
+if SIMULATOR:   # the simulator's block runner that waits instead of polling (cuda_simulator)
+    from .cuda_simulator import install as _install_simulator
+    _install_simulator()
 RT = np.float64      # the run's float type: each kernel clone gets its own (_clone)
 
 # float32 copies only: literal -> replacement. The Fourtakas hydrostatic term switches
