@@ -29,7 +29,7 @@ from sphgraph.scene import Scene
 
 def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, damping=True,
                 paddle="piston", end_time=4.5, coefsound=10.0, integrator="verlet", coefh=1.2,
-                physics=None, order=1):
+                physics=None, order=1, initial=None):
     """A flume scene dict: paddle at x = 0 (2 layers, moving) with the tank's end wall behind
     its stroke, beach-less far wall, damping over the last 1.2 wavelengths. Returns (dict,
     wavelength).
@@ -60,6 +60,7 @@ def flume_scene(dp=0.02, depth=0.3, height=0.08, period=1.0, length=None, dampin
     if order != 1:
         d["motion"][0]["order"] = order
     d["physics"].update(physics or {})     # e.g. {"visc_alpha": 0.0, "laminar_nu": 1e-6}
+    d["initial"].update(initial or {})     # e.g. {"jitter": 1e-12}: benchmarks/flume_spread.py
     if damping:
         d["damping"] = [{"axis": "x", "start": length - 1.2 * L, "end": length, "redumax": 10.0}]
     return d, L
