@@ -178,3 +178,14 @@ def fill_rows(lo, hi, role, wlo, rshape, first, bounds, origin, dp, kinds, rho0,
                     rho_m1[i] = rho0
                     i += 1
                 o[g] = i
+
+
+@njit(parallel=True, cache=True)
+def hydrostatic_density(pos, vertical, zs, rho0, g, B, inv_gamma, rho):
+    """rho[i] = rho0 * (1 + rho0*g*max(zs - z_i, 0)/B) ** inv_gamma, in float64, rounded to
+    rho's type once. A loop over libm's pow rather than numpy's `**`: numpy sends float64
+    powers to SIMD code chosen by the CPU (SVML on AVX-512 machines, libm elsewhere), so the
+    same scene would start with densities a few ulps apart on different machines."""
+    for i in prange(rho.shape[0]):
+        depth = max(zs - pos[i, vertical], 0.0)
+        rho[i] = rho0 * (1.0 + rho0 * g * depth / B) ** inv_gamma

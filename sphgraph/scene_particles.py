@@ -13,10 +13,9 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes, stl
+from .lattice_kernels import hydrostatic_density
 from .particles import FIXED, FLUID, MOVING, Particles
 from .scene_schema import _Checker, _vlist
-
-_CHUNK = 1 << 20   # rows a float64 temporary of build_particles holds at a time
 
 
 class SceneParticles:
@@ -284,13 +283,10 @@ class SceneParticles:
         n = nb + nf
         for m in self.extra.get("motion") or ():  # bodies moved by [[motion]] are kind 2
             kind[:nb][self.boundary_masks()[m["body"]]] = MOVING
-        if self.hydrostatic:    # in float64, a chunk at a time, rounded to dtype once
+        if self.hydrostatic:    # in float64, rounded to dtype once, the same on every CPU
             k = self.constants
-            g = abs(float(k.gravity[self.vertical]))
-            zs = self.surface_level()
-            for a in range(0, n, _CHUNK):
-                depth = np.maximum(zs - pos[a:a + _CHUNK, self.vertical], 0.0)
-                rho[a:a + _CHUNK] = rho0 * (1.0 + rho0 * g * depth / k.B) ** (1.0 / self.physics.gamma)
+            hydrostatic_density(pos, self.vertical, float(self.surface_level()), float(rho0),
+                                abs(float(k.gravity[self.vertical])), float(k.B), 1.0 / self.physics.gamma, rho)
             rho_m1[:] = rho
         if self.jitter > 0:  # breaks lattice ties (e.g. for slab cuts); same seed, same scene
             rng = np.random.default_rng(12345)
