@@ -35,10 +35,12 @@ from __future__ import annotations
 import numpy as np
 
 from .graph.kinds import TaskKind as K
+from .particles import MOVING
 
 SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
 MDBC_SUPPORTED = ("--backend numba-cpu (one rank or several) or numba-cuda (one rank or several; MPI ranks with "
-                  "--halo-transport staged), no [[motion]] bodies, no periodic axes on several ranks")
+                  "--halo-transport staged), no periodic axes on several ranks, [[motion]] bodies with "
+                  "boundary = \"mdbc\" (no-slip walls' continuity takes a still wall)")
 MDBC_KINDS = (K.MDBC, K.SEND_MDBC, K.RECV_MDBC_1, K.RECV_MDBC_2)
 
 
@@ -97,14 +99,29 @@ class Mdbc:
     """The ``mdbc`` task: modified dynamic boundaries (English et al. 2022, DualSPHysics'
     mDBC) on the boundary rows of one rank."""
 
-    def __init__(self, scene, det_min: float = 1e-3, noslip: bool | None = None):
-        from .physics.mdbc import interface_boxes
+    def __init__(self, scene, det_min: float = 1e-3, noslip: bool | None = None, motion=None):
+        """`motion`: the scene's moving bodies (sphgraph.motion.Motion) or None."""
+        from .physics.mdbc import ghost_positions, interface_boxes
         self.boxes = interface_boxes(scene)
         self.noslip = scene.physics.boundary == "mdbc-noslip" if noslip is None else noslip
         self.det_min = det_min
+        self.motion = motion
+        # A moving body's ghost nodes are mirrored once, across the interfaces at rest, from
+        # its particles' start positions, and then carried with the body (Motion.table): the
+        # interface boxes are the scene's at t = 0, so the ghosts of a body's rows at a later
+        # time cannot come from their positions then.
+        self.ghost_ref = None if motion is None else ghost_positions(np.asarray(motion.ref, np.float64), self.boxes)
+
+    def moving_ghosts(self, state):
+        """(ids, ghosts [m, dim]) of the moving bodies' particles at the time their rows hold
+        (the last `motion` task's, or the state's time before any), or None without bodies."""
+        if self.motion is None:
+            return None
+        t = state.extra.get("motion_time", state.time)
+        return self.motion.ids, self.motion.table(t, self.ghost_ref)[0]
 
     def apply(self, ctx) -> None:
-        ctx.compute.mdbc(ctx.state, self.boxes, self.det_min, self.noslip)
+        ctx.compute.mdbc(ctx.state, self.boxes, self.det_min, self.noslip, self.moving_ghosts(ctx.state))
 
     @staticmethod
     def ghost_reach(scene, particles, axis: int) -> float:
@@ -116,7 +133,12 @@ class Mdbc:
         if not b.any():
             return 0.0
         pos = np.asarray(particles.pos[b], np.float64)
-        return float(np.abs(ghost_positions(pos, interface_boxes(scene))[:, axis] - pos[:, axis]).max())
+        off = ghost_positions(pos, interface_boxes(scene)) - pos
+        reach = np.abs(off[:, axis])
+        if any(e["type"] in ("rotation", "flap") for e in scene.extra.get("motion") or []):
+            turn = particles.kind[b] == MOVING     # a turning body turns its ghosts towards the axis
+            reach[turn] = np.sqrt((off[turn] ** 2).sum(1))
+        return float(reach.max())
 
 
 class Features:
@@ -166,7 +188,8 @@ class Features:
             why = (f"--backend {name}" if "mdbc" not in have
                    else f"{nranks} ranks on --backend {name}" if nranks != 1 and "mdbc-ranks" not in have
                    else "periodic axes on several ranks" if nranks != 1 and s.periodic
-                   else "[[motion]] bodies" if s.extra.get("motion") else None)
+                   else "[[motion]] bodies with no-slip walls" if s.extra.get("motion") and ph.boundary == "mdbc-noslip"
+                   else None)
             if why is not None:
                 raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "
                                  f"(or use boundary = \"dbc\"), got {why}")
@@ -200,9 +223,9 @@ class Features:
         self.kinds = task_kinds(s, sim.axis, sim.nranks, sample=self.sample)
         if self.probes is not None:   # every rank's task shares the one sampler (mock) or not (MPI)
             self.probes.shared = len(sim.comm.local_ranks) == sim.nranks
-        if K.MDBC in self.kinds:
-            self.mdbc = Mdbc(s)
         self.motion = Motion.from_scene(s, particles)
+        if K.MDBC in self.kinds:
+            self.mdbc = Mdbc(s, motion=self.motion)
         self.damping = Damping.from_scene(s)
         if s.periodic:
             from .periodic import Periodic
@@ -221,7 +244,9 @@ class Features:
         """The ``motion`` task: bodies at the stage's end time."""
         st = ctx.state
         mid = stage < self.stages
-        ctx.compute.move_bodies(st, self.motion, st.time + (0.5 * st.dt if mid else st.dt), mid)
+        t = st.time + (0.5 * st.dt if mid else st.dt)
+        ctx.compute.move_bodies(st, self.motion, t, mid)
+        st.extra["motion_time"] = t     # the time the bodies' rows hold: their mDBC ghosts' (Mdbc)
 
     def check_begin(self, ctx) -> None:
         """The ``check`` task: the backend's end-of-step check of this rank's rows started;

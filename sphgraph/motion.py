@@ -379,14 +379,17 @@ class Motion:
         order = np.argsort(ids, kind="stable")
         return cls(bodies, ids[order], np.concatenate(body_of)[order], np.concatenate(refs)[order])
 
-    def table(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def table(self, t: float, points: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(positions, velocities) [n, dim] of every moving particle at time ``t``, in the
-        order of ``self.ids``: what a device backend uploads and puts on its rows by id."""
-        pos = np.empty_like(self.ref)
-        vel = np.empty_like(self.ref)
+        order of ``self.ids``: what a device backend uploads and puts on its rows by id.
+        ``points``: other points carried with the particles' bodies instead (one a particle,
+        given at t = 0, e.g. mDBC's ghost nodes), which each body moves as it moves its own."""
+        ref = self.ref if points is None else points
+        pos = np.empty_like(ref)
+        vel = np.empty_like(ref)
         for i, body in enumerate(self.bodies):
             s = self.body_of == i
-            pos[s], vel[s] = body.apply(self.ref[s], t)
+            pos[s], vel[s] = body.apply(ref[s], t)
         return pos, vel
 
     def move(self, state, t: float) -> None:

@@ -78,10 +78,10 @@ def no_halo_sums():
     class NoHaloSums(NumbaCUDA):
         name = "numba-cuda"
 
-        def mdbc(self, state, boxes, det_min, noslip):
+        def mdbc(self, state, boxes, det_min, noslip, moving=None):
             halos, state.halos = state.halos, {}
             try:
-                super().mdbc(state, boxes, det_min, noslip)
+                super().mdbc(state, boxes, det_min, noslip, moving)
             finally:
                 state.halos = halos
 

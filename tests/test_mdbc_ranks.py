@@ -38,10 +38,10 @@ class NoHaloSums(NumbaCPU):
     """numba-cpu whose ghosts sum the owned fluid only."""
     name = "numba-cpu"
 
-    def mdbc(self, state, boxes, det_min, noslip):
+    def mdbc(self, state, boxes, det_min, noslip, moving=None):
         halos, state.halos = state.halos, {}
         try:
-            super().mdbc(state, boxes, det_min, noslip)
+            super().mdbc(state, boxes, det_min, noslip, moving)
         finally:
             state.halos = halos
 

@@ -227,10 +227,14 @@ class ComputeBackend:
         corrector's forces read them next). The host rows are the truth here."""
         motion.move(state, t)
 
-    def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
+    def mdbc(self, state, boxes, det_min: float, noslip: bool, moving=None) -> None:
         """mDBC (sphgraph.physics.mdbc): each boundary row's density (and, `noslip`, velocity)
-        from the fluid at its ghost node: the owned fluid rows and the halos' ("mdbc" in
-        scene_features; the halos only with "mdbc-ranks")."""
+        from the fluid at its ghost node, mirrored across the scene's interface `boxes`: the
+        owned fluid rows and the halos' ("mdbc" in scene_features; the halos only with
+        "mdbc-ranks"), and the rows' pressures. `moving`: None, or (ids, ghosts) -- the ghost
+        nodes [m, dim] of the moving bodies' particles (sorted ids) at the time their rows
+        hold (`Mdbc.moving_ghosts`); those rows take their ghost from it and keep their
+        velocity, the body's."""
         raise NotImplementedError
 
     def mdbc_edge(self, state, domain, direction: int):
@@ -255,12 +259,6 @@ class ComputeBackend:
 
     def shift_apply(self, state) -> None:
         """The displacements added to the positions."""
-        raise NotImplementedError
-
-    def mdbc(self, state, boxes, det_min: float, noslip: bool) -> None:
-        """mDBC: density (and, `noslip`, velocity) of the boundary rows from the fluid at
-        their ghost nodes (mirrored across the scene's interface `boxes`,
-        sphgraph.physics.mdbc), and their pressures."""
         raise NotImplementedError
 
     def lane_begin(self, state, task, step) -> None:

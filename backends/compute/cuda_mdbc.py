@@ -1,9 +1,12 @@
 """numba.cuda kernel of mDBC (sphgraph.physics.mdbc): the GPU twin of cpu_mdbc.mdbc_boundary, one
 thread a boundary row, with the same per-row maths (`ghost_add`, `ghost_value`) on local arrays.
 
-The ghost node of each boundary particle is fixed (the scene's geometry; no moving bodies): it
-is computed once on the host from the particle's start position (`ghost_positions`) and kept
-on the device as a table by particle id, so a stage moves nothing across the bus. The
+The ghost node of each fixed boundary particle is the scene's geometry: it is computed once
+on the host from the particle's position (`ghost_positions`) and kept on the device as a
+table by particle id, so a stage moves nothing across the bus for it. A moving body's ghost
+nodes move with the body: each mdbc puts them (`Mdbc.moving_ghosts`, dim numbers a moving
+particle, uploaded) into the table by id (`k_set_ghosts`), and the body's rows keep their
+velocity, the body's. The
 kernel reads the rank's fluid rows through the kind-split cells (the fluid half of `start`)
 and writes each boundary row's density, velocity and pressure in place (fluid rows are only
 read: no race).
@@ -31,6 +34,7 @@ from numba import cuda, njit
 from sphgraph.cells import cell_window
 from sphgraph.config import O_KERNEL, P_MASS_F, P_SUPPORT2
 from sphgraph.errors import CommError
+from sphgraph.particles import MOVING
 from sphgraph.physics.eos import tait
 from sphgraph.physics.mdbc import ghost_add, ghost_positions, ghost_value
 from sphgraph.wire import WirePayload
@@ -43,10 +47,11 @@ from .cuda_memory import VEC, _every4, count_bytes, host_wait, kept_views
 RT = np.float64
 
 
-def k_mdbc(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, start, o0, o1, o2, inv_size,
+def k_mdbc(px, py, pz, ghost, ids, kind, vx, vy, vz, rho, press, i0, n, start, o0, o1, o2, inv_size,
            n0, n1, n2, a0, a1, a2, reach, prm, dim, kernel_id, det_min, noslip):
-    """Boundary rows i0..n-1: density (and, with `noslip`, velocity) from the fluid about the
-    row's ghost node ghost[3 id : 3 id + 3], and the row's pressure."""
+    """Boundary rows i0..n-1: density (and, with `noslip`, velocity; a moving body's rows
+    keep theirs) from the fluid about the row's ghost node ghost[3 id : 3 id + 3], and the
+    row's pressure."""
     i = cuda.grid(1) + i0
     if i >= n:
         return
@@ -86,10 +91,11 @@ def k_mdbc(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, start, o0, o1,
     rr, u0, u1, u2 = ghost_value(A, b, A2, b2, vs, sw, px[i] - gx, py[i] - gy,
                                  (pz[i] - gz) if dim == 3 else 0.0, dim, prm, det_min, noslip)
     rho[i] = rr
-    vx[i] = u0
-    vy[i] = u1
-    if dim == 3:
-        vz[i] = u2
+    if kind[i] != MOVING:
+        vx[i] = u0
+        vy[i] = u1
+        if dim == 3:
+            vz[i] = u2
     press[i] = tait(rr, prm)
 
 
@@ -168,7 +174,7 @@ def k_mdbc_src(ghost, ids, i0, n, ref0, ref1, ref2, sx, sy, sz, svx, svy, svz, s
     acc[k + 23] = sw
 
 
-def k_mdbc_value(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, prm, dim, det_min, noslip, acc):
+def k_mdbc_value(px, py, pz, ghost, ids, kind, vx, vy, vz, rho, press, i0, n, prm, dim, det_min, noslip, acc):
     """Boundary rows i0..n-1: their density, velocity and pressure from the sums in acc."""
     i = cuda.grid(1) + i0
     if i >= n:
@@ -187,11 +193,25 @@ def k_mdbc_value(px, py, pz, ghost, ids, vx, vy, vz, rho, press, i0, n, prm, dim
     rr, u0, u1, u2 = ghost_value(A, b, A2, b2, vs, sw, px[i] - gx, py[i] - gy,
                                  (pz[i] - gz) if dim == 3 else 0.0, dim, prm, det_min, noslip)
     rho[i] = rr
-    vx[i] = u0
-    vy[i] = u1
-    if dim == 3:
-        vz[i] = u2
+    if kind[i] != MOVING:
+        vx[i] = u0
+        vy[i] = u1
+        if dim == 3:
+            vz[i] = u2
     press[i] = tait(rr, prm)
+
+
+def k_set_ghosts(mids, mg, m, dim, ghost, nslot):
+    """The moving bodies' ghost nodes (mg: dim numbers each, ids mids) put in the table by
+    id (ids past the table's nslot rows are not this rank's)."""
+    k = cuda.grid(1)
+    if k >= m:
+        return
+    q = mids[k]
+    if q >= nslot:
+        return
+    for c in range(dim):
+        ghost[3 * q + c] = mg[dim * k + c]
 
 
 def k_edge_bound(start, f0, nch, ncells, pos4, vel4, cap, o_pos4, o_vel4):
@@ -211,7 +231,7 @@ def k_edge_bound(start, f0, nch, ncells, pos4, vel4, cap, o_pos4, o_vel4):
         i += cuda.gridsize(1)
 
 
-_KERNELS = ("k_mdbc", "k_mdbc_src", "k_mdbc_value", "k_edge_bound")
+_KERNELS = ("k_mdbc", "k_mdbc_src", "k_mdbc_value", "k_set_ghosts", "k_edge_bound")
 
 
 def build(dtype) -> types.SimpleNamespace:
@@ -250,10 +270,10 @@ class MdbcDone(WirePayload):
 
 class CudaMdbc:
     """`ComputeBackend.mdbc`, `mdbc_edge` and `mdbc_halo` on the device rows (mixed into
-    NumbaCUDA). The ghost table is built from the host rows' boundary positions (boundary
-    particles do not move: no [[motion]] bodies with mDBC) and kept on the device; it is
-    built again after an upload or once boundary rows came from a neighbour (moved cuts),
-    whose ids it lacks."""
+    NumbaCUDA). The ghost table is built from the host rows' boundary positions and kept on
+    the device; it is built again after an upload or once boundary rows came from a
+    neighbour (moved cuts), whose ids it lacks. A moving body's entries are put there again
+    at every mdbc (`_moving_ghosts`)."""
 
     def _mdbc_ghosts(self, state, dv, boxes):
         have = state.extra.get("mdbc_ghost")
@@ -263,7 +283,24 @@ class CudaMdbc:
                                                 cuda.to_device(ghost_table(state.particles, boxes)))
         return have[2]
 
-    def mdbc(self, state, boxes, det_min, noslip) -> None:
+    def _moving_ghosts(self, state, dv, k, tab, moving) -> None:
+        """The moving bodies' ghost nodes at the rows' time into the table by id (the ids'
+        device copy made once a run, the nodes uploaded each call)."""
+        ids, carried = moving
+        m = len(ids)
+        if not m:
+            return
+        have = state.extra.get("mdbc_moving_ids")
+        if have is None or have[0] is not ids:
+            have = state.extra["mdbc_moving_ids"] = (ids, cuda.to_device(np.ascontiguousarray(ids, np.int64)))
+        s = self._s(state)
+        flat = np.ascontiguousarray(carried, np.float64).ravel()
+        mg = dv.dev_buf("mdbc_moving", flat.nbytes).view(np.float64)
+        mg.copy_to_device(flat, stream=s)   # pageable: CUDA has staged it when the call returns
+        count_bytes(state, "h2d_bytes", "mdbc", flat.nbytes)
+        k.k_set_ghosts[CK.blocks(m), CK.BLOCK](have[1], mg, m, dv.dim, tab, tab.size // 3)
+
+    def mdbc(self, state, boxes, det_min, noslip, moving=None) -> None:
         dv = state.extra["dev"]
         if dv.n <= dv.nf:
             return
@@ -272,6 +309,8 @@ class CudaMdbc:
         g = dv.grid
         o, dims, axes = g["origin"], g["dims"], g["axes"]
         k = self._on(state, build(dv.dtype))
+        if moving is not None:
+            self._moving_ghosts(state, dv, k, tab, moving)
         geo = (A["start"], float(o[0]), float(o[1]), float(o[2]), float(g["inv"]), int(dims[0]), int(dims[1]),
                int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(g["reach"]), dv.prm_d(state), dv.dim,
                int(state.opt[O_KERNEL]))
@@ -279,8 +318,8 @@ class CudaMdbc:
         nb = dv.n - dv.nf
         if not halos:
             k.k_mdbc[CK.blocks(nb), CK.BLOCK](
-                A["px"], A["py"], A["pz"], tab, A["id"], A["vx"], A["vy"], A["vz"], A["rho"], A["press"], dv.nf,
-                dv.n, *geo, float(det_min), bool(noslip))
+                A["px"], A["py"], A["pz"], tab, A["id"], A["kind"], A["vx"], A["vy"], A["vz"], A["rho"], A["press"],
+                dv.nf, dv.n, *geo, float(det_min), bool(noslip))
             dv.host_stale = True
             return
         # the ghosts near a cut reach into the halos: their sums go on over each halo's fluid
@@ -295,8 +334,8 @@ class CudaMdbc:
                                                        *([0.0] * (3 - dv.dim)), *src, int(g["reach"]),
                                                        dv.prm_d(state), dv.dim, int(state.opt[O_KERNEL]), acc,
                                                        False)
-        k.k_mdbc_value[CK.blocks(nb), CK.BLOCK](A["px"], A["py"], A["pz"], tab, A["id"], A["vx"], A["vy"], A["vz"],
-                                                 A["rho"], A["press"], dv.nf, dv.n, dv.prm_d(state), dv.dim,
+        k.k_mdbc_value[CK.blocks(nb), CK.BLOCK](A["px"], A["py"], A["pz"], tab, A["id"], A["kind"], A["vx"], A["vy"],
+                                                 A["vz"], A["rho"], A["press"], dv.nf, dv.n, dv.prm_d(state), dv.dim,
                                                  float(det_min), bool(noslip), acc)
         dv.host_stale = True
 

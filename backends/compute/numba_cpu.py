@@ -6,6 +6,7 @@ import numpy as np
 
 from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
 from sphgraph.config import O_DDT_DF, O_RIEMANN, P_RHO0
+from sphgraph.particles import MOVING
 from sphgraph.registry import register
 from sphgraph.state import ForceBuffers, PARTS
 
@@ -253,7 +254,7 @@ class NumbaCPU(ComputeBackend):
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
         S.shift_add(state.particles.pos, state.extra.pop("shift"))
 
-    def mdbc(self, state, boxes, det_min, noslip) -> None:
+    def mdbc(self, state, boxes, det_min, noslip, moving=None) -> None:
         from sphgraph.physics.mdbc import ghost_positions
 
         from .cpu_mdbc import mdbc_boundary
@@ -262,6 +263,10 @@ class NumbaCPU(ComputeBackend):
         if len(rows) == 0:
             return
         ghost = ghost_positions(np.asarray(p.pos[rows], np.float64), boxes)
+        mv = np.nonzero(p.kind[rows] == MOVING)[0] if moving is not None else rows[:0]
+        if len(mv):     # a moving body's ghosts are carried with it (Mdbc.moving_ghosts)
+            ids, carried = moving
+            ghost[mv] = carried[np.searchsorted(ids, p.id[rows[mv]])]
         rho_out = np.empty(len(rows))
         vel_out = np.zeros((len(rows), p.dim))
         halos = [h for h in state.halos.values() if h is not None and h.n]
@@ -277,6 +282,7 @@ class NumbaCPU(ComputeBackend):
                 np.concatenate([getattr(p, name)] + [getattr(h, name) for h in halos])[perm]))
             mdbc_boundary(at[rows], ghost, pos[perm], pick("vel"), pick("rho"), pick("kind"), *grid.kernel_args(),
                           state.prm, state.opt, det_min, noslip, rho_out, vel_out)
+        vel_out[mv] = p.vel[rows[mv]]      # a moving body's rows keep the body's velocity
         p.rho[rows] = rho_out
         p.vel[rows] = vel_out
         K.pressure_into(p.rho, state.prm, state.press)
