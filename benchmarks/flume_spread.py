@@ -47,20 +47,25 @@ def main(argv=None) -> int:
     ap.add_argument("--boundary", default="dbc", choices=("dbc", "mdbc"),
                     help="[physics] boundary of the tank and the paddle (mdbc: the paddle's ghosts move with it)")
     a = ap.parse_args(argv)
-    if a.workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(a.workers) as ex:
-            out = list(ex.map(one, a.jitter, [a.boundary] * len(a.jitter)))
-    else:
-        out = [one(j, a.boundary) for j in a.jitter]
-    for r in out:
+    out = []
+
+    def done(r):   # each run as it ends (the JSON too): a cut-off batch keeps what finished
+        out.append(r)
         print(f"jitter {r['jitter']:.0e}: H {100 * r['H_err']:+.2f} %, T {100 * r['T_err']:+.2f} %, "
               f"waves {', '.join(f'{h / 0.08:.3f}' for h in r['heights'])} H, {r['wall_s']:.0f} s", flush=True)
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(sorted(out, key=lambda x: x["jitter"]), f, indent=1)
+    if a.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+        with ProcessPoolExecutor(a.workers) as ex:
+            for fut in as_completed([ex.submit(one, j, a.boundary) for j in a.jitter]):
+                done(fut.result())
+    else:
+        for j in a.jitter:
+            done(one(j, a.boundary))
     hs = [100 * r["H_err"] for r in out]
     print(f"H error over {len(hs)} runs: {min(hs):+.2f} ... {max(hs):+.2f} %, mean {sum(hs) / len(hs):+.2f} %")
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(out, f, indent=1)
     return 0
 
 
