@@ -121,7 +121,26 @@ class Mdbc:
         return self.motion.ids, self.motion.table(t, self.ghost_ref)[0]
 
     def apply(self, ctx) -> None:
-        ctx.compute.mdbc(ctx.state, self.boxes, self.det_min, self.noslip, self.moving_ghosts(ctx.state))
+        """The task body: on a rank with periodic image axes the ghosts near a periodic face
+        also sum the fluid across it, from images of the rank's rows made here, now; the
+        images datum (`state.halos[IMAGE_SIDE]`, made by forces_images after this task, with
+        the new boundary values) holds the previous stage's rows at this point and is not
+        read."""
+        from .periodic import IMAGE_SIDE
+        st = ctx.state
+        held = st.halos
+        per = ctx.features.periodic if ctx.features is not None else None
+        st.halos = {k: h for k, h in held.items() if k != IMAGE_SIDE}
+        try:
+            if per is not None and per.image_axes:
+                ctx.compute.sync_host(st)     # a device backend's host rows are a copy
+                p = st.particles
+                im = per.images(p.pos, p.vel, p.rho, p.kind)
+                ctx.compute.prepare_halo(st, im)
+                st.halos[IMAGE_SIDE] = im
+            ctx.compute.mdbc(st, self.boxes, self.det_min, self.noslip, self.moving_ghosts(st))
+        finally:
+            st.halos = held
 
     @staticmethod
     def ghost_reach(scene, particles, axis: int) -> float:

@@ -53,6 +53,8 @@ class Periodic:
                 raise InputError(f"{sim.scene.source}: domain.periodic: expected a period >= 4.4h "
                                  f"= {2 * self.reach:.4g} m along {'xyz'[a]}, got {self.period[a]:.4g} m")
         for c in sim.contexts:
+            # a backend that writes a lone interior part reduced must not: images come after it
+            c.state.extra["images"] = bool(self.image_axes)
             x = c.state.particles.pos
             for a in self.axes:
                 if np.any(x[:, a] < self.lo[a]) or np.any(x[:, a] >= self.hi[a] - 1e-9 * sim.scene.dp):
@@ -101,20 +103,18 @@ class Periodic:
         """The ``forces_images`` task, force part ``halo_3``: the rank's rows against the
         images of its own rows (placed only when there are image axes)."""
         st = ctx.state
+        ctx.compute.sync_host(st)     # a device backend's host rows are a copy: bring them up to date
         p = st.particles
         halo = self.images(p.pos, p.vel, p.rho, p.kind)
         ctx.compute.prepare_halo(st, halo)
         st.halos[IMAGE_SIDE] = halo
         ctx.compute.forces(st, f"halo_{IMAGE_SIDE}")
 
-    def wrap(self, state) -> None:
-        """Bring positions on the image axes back into [min, max)."""
-        pos = state.particles.pos
-        for a in self.image_axes:
-            x = pos[:, a]
-            out = (x < self.lo[a]) | (x >= self.hi[a])
-            if out.any():
-                pos[out, a] = self.lo[a] + np.mod(x[out] - self.lo[a], self.period[a])
+    def wrap(self, ctx) -> None:
+        """The ``wrap`` task: positions on the image axes back into [min, max), on the
+        backend's rows (sphgraph.periodic_maths.wrap_axis)."""
+        if self.image_axes:
+            ctx.compute.wrap_periodic(ctx.state, self.lo, self.hi, self.image_axes)
 
 
 class PeriodicSlabs(Slabs):

@@ -61,7 +61,7 @@ class ForceBuffers:
                    ddk=np.zeros(n if ddk else 0, dtype))
 
 
-PARTS = ("interior", "halo_1", "halo_2")  # fixed summation order
+PARTS = ("interior", "halo_1", "halo_2", "halo_3")  # fixed summation order (halo_3: the periodic images)
 
 
 @dataclass

@@ -227,6 +227,13 @@ class ComputeBackend:
         corrector's forces read them next). The host rows are the truth here."""
         motion.move(state, t)
 
+    def wrap_periodic(self, state, lo, hi, axes) -> None:
+        """Positions along `axes` back into [lo, hi) (periodic axes,
+        sphgraph.periodic_maths.wrap_axis). Here: the host rows."""
+        from sphgraph.periodic_maths import wrap_rows
+        lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+        wrap_rows(state.particles.pos, lo, hi, hi - lo, np.asarray(axes, np.int64))
+
     def mdbc(self, state, boxes, det_min: float, noslip: bool, moving=None) -> None:
         """mDBC (sphgraph.physics.mdbc): each boundary row's density (and, `noslip`, velocity)
         from the fluid at its ghost node, mirrored across the scene's interface `boxes`: the

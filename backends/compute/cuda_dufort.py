@@ -25,6 +25,7 @@ from numba import cuda, njit
 
 from sphgraph.config import O_DDT_DF
 from sphgraph.physics.interact import fluid_pair_df
+from sphgraph.state import PARTS
 
 from . import cuda_forces as CF
 from . import cuda_halo as CH
@@ -50,7 +51,7 @@ def _store_ddk(i, final, cc, kk, ddk_):
 
 
 # ------------------------------------------------------------------- reduction, integration
-def k_reduce_ddk(nparts, n, kind, k0, c0, k1, c1, k2, c2, ddk_):
+def k_reduce_ddk(nparts, n, kind, k0, c0, k1, c1, k2, c2, k3, c3, ddk_):
     """The parts' K_a summed in k_reduce's order, 0 where any part cancelled the diffusion
     and on boundary rows (cpu_kernels.reduce_parts)."""
     i = cuda.grid(1)
@@ -68,6 +69,9 @@ def k_reduce_ddk(nparts, n, kind, k0, c0, k1, c1, k2, c2, ddk_):
     if nparts > 2:
         s += k2[i]
         cc |= c2[i]
+    if nparts > 3:
+        s += k3[i]
+        cc |= c3[i]
     ddk_[i] = s if cc == 0 else zero * s
 
 
@@ -171,9 +175,9 @@ def reduce(be, state, dv, ranged) -> None:
         k.k_reduce_ranged_ddk[CK.blocks(dv.n), CK.BLOCK](dv.n, A["kind"], inner["ddk"], inner["cancel"],
                                                         A["pick8"], *flat, out)
         return
-    names = [p for p in ("interior", "halo_1", "halo_2") if p in P]
+    names = [p for p in PARTS if p in P]
     bufs = [P[p] for p in names]
-    while len(bufs) < 3:
+    while len(bufs) < 4:
         bufs.append(bufs[0])
     flat = [x for b in bufs for x in (b["ddk"], b["cancel"])]
     k.k_reduce_ddk[CK.blocks(dv.n), CK.BLOCK](len(names), dv.n, A["kind"], *flat, out)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from sphgraph.config import O_DDT, O_KERNEL, O_LAMINAR, P_SUPPORT2
+from sphgraph.state import PARTS
 
 from . import cuda_dufort as CD
 from . import cuda_halo as CH
@@ -24,7 +25,9 @@ class CudaForceDispatch:
         k = self._k(state)
         n, dim = dv.n, dv.dim
         halos_exist = any(h is not None and h.n for h in state.halos.values())
-        final = part == "interior" and not halos_exist and state.nranks == 1
+        # one part only: the interior, written reduced -- not where periodic images come after
+        # it (forces_images), which at a run's first stage have not been made yet
+        final = part == "interior" and not halos_exist and state.nranks == 1 and not state.extra.get("images")
         A = dv.A()
         if part == "interior":
             g = dv.grid
@@ -116,10 +119,10 @@ class CudaForceDispatch:
             CD.reduce(self, state, dv, True)
             self._sync()
             return
-        bufs = [dv.parts[p] for p in ("interior", "halo_1", "halo_2") if p in dv.parts]
-        while len(bufs) < 3:
+        bufs = [dv.parts[p] for p in PARTS if p in dv.parts]
+        nparts = len(bufs)
+        while len(bufs) < 4:
             bufs.append(bufs[0])
-        nparts = len([p for p in ("interior", "halo_1", "halo_2") if p in dv.parts])
         flat = []
         for b in bufs:
             flat += [b["x"], b["y"], b["z"], b["ar"], b["ddt"], b["cancel"]]

@@ -5,10 +5,12 @@ their own (float64 positions, run-type velocities).
 """
 from numba import cuda
 
+from sphgraph.periodic_maths import wrap_axis
+
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,
                                         predict_density, verlet_axis, verlet_density)
 
-KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct")
+KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct", "k_wrap")
 
 
 def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar, dk,
@@ -76,3 +78,17 @@ def k_sym_correct(px, py, pz, vx, vy, vz, rho, px0, py0, pz0, vx0, vy0, vz0, rho
         rho[i] = r
     else:
         rho[i] = bound_density(r, rho_ref)
+
+
+def k_wrap(px, py, pz, n, lo0, lo1, lo2, hi0, hi1, hi2, p0, p1, p2, w0, w1, w2):
+    """Positions on the wrapped axes (w0..w2 nonzero) brought back into [lo, hi)
+    (sphgraph.periodic_maths.wrap_axis, as on the host)."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    if w0:
+        px[i] = wrap_axis(px[i], lo0, hi0, p0)
+    if w1:
+        py[i] = wrap_axis(py[i], lo1, hi1, p1)
+    if w2:
+        pz[i] = wrap_axis(pz[i], lo2, hi2, p2)

@@ -13,8 +13,9 @@ KERNELS = ("k_reduce", "k_dt_terms", "k_check_bounds", "k_check_init", "k_count_
 
 def k_reduce(nparts, n, dim, kind, gx, gy, gz,
              x0, y0, z0, r0, d0, c0, x1, y1, z1, r1, d1, c1, x2, y2, z2, r2, d2, c2,
-             ax_, ay_, az_, ar_):
-    """Partial buffers summed in their fixed order (interior, halo 1, halo 2), as
+             x3, y3, z3, r3, d3, c3, ax_, ay_, az_, ar_):
+    """Partial buffers summed in their fixed order (interior, halo 1, halo 2, the periodic
+    images: the parts present, `nparts` of them, in that order), as
     cpu_kernels.reduce_parts: gravity on fluid, diffusion unless any part cancelled it
     (the viscous-dt maximum needs no reduction: every part's kernel takes it into one
     scalar)."""
@@ -46,6 +47,14 @@ def k_reduce(nparts, n, dim, kind, gx, gy, gz,
         s += r2[i]
         dd += d2[i]
         cc |= c2[i]
+    if nparts > 3:
+        sx += x3[i]
+        sy += y3[i]
+        if dim == 3:
+            sz += z3[i]
+        s += r3[i]
+        dd += d3[i]
+        cc |= c3[i]
     if kind[i] == 0:      # accelerations of fluid rows only (rows 0..nf-1: see prepare)
         ax_[i] = sx + gx
         ay_[i] = sy + gy

@@ -69,6 +69,20 @@ class CudaStepDispatch:
                 A["p" + ax + "0"] = dev_array(m if (ax != "z" or dv.dim == 3) else 1, np.float64)
         return A["px0"], A["py0"], A["pz0"]
 
+    def wrap_periodic(self, state, lo, hi, axes) -> None:
+        """The device rows' positions along `axes` wrapped (cuda_integrate.k_wrap); the next
+        build_cells sorts and packs them again."""
+        dv = state.extra["dev"]
+        if not dv.n or not len(axes):
+            return
+        A = dv.A()
+        lo3, hi3, p3, w3 = [0.0] * 3, [1.0] * 3, [1.0] * 3, [0] * 3
+        for a in axes:
+            lo3[a], hi3[a], p3[a], w3[a] = float(lo[a]), float(hi[a]), float(hi[a] - lo[a]), 1
+        self._k(state).k_wrap[CK.blocks(dv.n), CK.BLOCK](A["px"], A["py"], A["pz"], dv.n, *lo3, *hi3, *p3, *w3)
+        dv.moved = np.inf
+        dv.host_stale = True
+
     def integrate(self, state, stage: int, integrator: str, euler: bool) -> None:
         dv = state.extra["dev"]
         k = self._k(state)

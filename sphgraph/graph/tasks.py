@@ -315,7 +315,7 @@ def run_damping(ctx, task):
 
 
 def run_wrap(ctx, task):
-    ctx.features.periodic.wrap(ctx.state)
+    ctx.features.periodic.wrap(ctx)
 
 
 def run_check(ctx, task):
