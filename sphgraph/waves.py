@@ -105,8 +105,10 @@ class Damping:
     """Velocity relaxation zones (the ``damping`` task, last stage of a step)."""
 
     def __init__(self, entries: list):
+        from .physics.damping import zone_table
         self.zones = [(_AXES.index(e["axis"]), e["start"], e["end"], e["overlimit"], e["redumax"])
                       for e in entries]
+        self.table = zone_table(self.zones)
 
     @classmethod
     def from_scene(cls, scene) -> "Damping | None":
@@ -114,24 +116,15 @@ class Damping:
         return cls(e) if e else None
 
     def factor(self, pos: np.ndarray, dt: float) -> np.ndarray:
-        """Multiplier of each row's velocity (1 outside every zone)."""
-        f = np.ones(len(pos))
-        for ax, a, b, over, redu in self.zones:
-            s = (pos[:, ax] - a) / (b - a)                    # 0 at start, 1 at end
-            beyond = (pos[:, ax] - b) * math.copysign(1.0, b - a)   # distance past the end
-            inside = (s > 0) & (beyond <= over)
-            fd = np.minimum(s[inside], 1.0)
-            f[inside] *= np.maximum(0.0, 1.0 - dt * redu * fd * fd)
+        """Multiplier of each row's velocity (1 outside every zone; sphgraph.physics.damping)."""
+        from .physics.damping import damping_factors
+        f = np.empty(len(pos))
+        damping_factors(np.ascontiguousarray(pos, np.float64), self.table, float(dt), f)
         return f
 
-    def apply(self, state, dt: float) -> None:
-        p = state.particles
-        rows = np.nonzero(p.kind == FLUID)[0]
-        f = self.factor(p.pos[rows], dt)
-        hit = f < 1.0
-        if hit.any():
-            r = rows[hit]
-            p.vel[r] *= f[hit, None].astype(p.vel.dtype)
+    def apply(self, ctx) -> None:
+        """The ``damping`` task on the backend's rows."""
+        ctx.compute.damp(ctx.state, self, ctx.state.dt)
 
 
 # --------------------------------------------------------------------------- gauges

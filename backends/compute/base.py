@@ -227,6 +227,17 @@ class ComputeBackend:
         corrector's forces read them next). The host rows are the truth here."""
         motion.move(state, t)
 
+    def damp(self, state, damping, dt: float) -> None:
+        """The fluid rows' velocities times their factor of the relaxation zones of `damping`
+        (sphgraph.waves.Damping; sphgraph.physics.damping). Here: the host rows."""
+        p = state.particles
+        rows = np.nonzero(p.kind == 0)[0]
+        f = damping.factor(p.pos[rows], dt)
+        hit = f < 1.0
+        if hit.any():
+            r = rows[hit]
+            p.vel[r] *= f[hit, None].astype(p.vel.dtype)
+
     def wrap_periodic(self, state, lo, hi, axes) -> None:
         """Positions along `axes` back into [lo, hi) (periodic axes,
         sphgraph.periodic_maths.wrap_axis). Here: the host rows."""

@@ -6,11 +6,12 @@ their own (float64 positions, run-type velocities).
 from numba import cuda
 
 from sphgraph.periodic_maths import wrap_axis
+from sphgraph.physics.damping import damping_factor
 
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,
                                         predict_density, verlet_axis, verlet_density)
 
-KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct", "k_wrap")
+KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct", "k_wrap", "k_damp")
 
 
 def k_verlet(px, py, pz, vx, vy, vz, rho, vxm, vym, vzm, rhom, kind, ax, ay, az, ar, dk,
@@ -92,3 +93,16 @@ def k_wrap(px, py, pz, n, lo0, lo1, lo2, hi0, hi1, hi2, p0, p1, p2, w0, w1, w2):
         py[i] = wrap_axis(py[i], lo1, hi1, p1)
     if w2:
         pz[i] = wrap_axis(pz[i], lo2, hi2, p2)
+
+
+def k_damp(px, py, pz, vx, vy, vz, kind, n, dim, zones, nz, dt):
+    """Fluid rows' velocities times their relaxation zones' factor (sphgraph.physics.damping)."""
+    i = cuda.grid(1)
+    if i >= n or kind[i] != 0:
+        return
+    f = damping_factor(px[i], py[i], pz[i] if dim == 3 else 0.0, zones, nz, dt)
+    if f < 1.0:
+        vx[i] = vx[i] * f
+        vy[i] = vy[i] * f
+        if dim == 3:
+            vz[i] = vz[i] * f

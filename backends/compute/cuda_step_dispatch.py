@@ -4,6 +4,7 @@ next sort's edge bounds in the same host wait)."""
 from __future__ import annotations
 
 import numpy as np
+from numba import cuda
 
 from sphgraph.config import P_RHO0
 
@@ -68,6 +69,21 @@ class CudaStepDispatch:
             for ax in "xyz":
                 A["p" + ax + "0"] = dev_array(m if (ax != "z" or dv.dim == 3) else 1, np.float64)
         return A["px0"], A["py0"], A["pz0"]
+
+    def damp(self, state, damping, dt: float) -> None:
+        """The relaxation zones on the device rows (cuda_integrate.k_damp; the zones' table
+        uploaded once a run)."""
+        dv = state.extra["dev"]
+        if not dv.n:
+            return
+        have = state.extra.get("damping_dev")
+        if have is None or have[0] is not damping:
+            have = state.extra["damping_dev"] = (damping, cuda.to_device(damping.table))
+        A = dv.A()
+        self._k(state).k_damp[CK.blocks(dv.n), CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"],
+                                                         A["kind"], dv.n, dv.dim, have[1],
+                                                         len(damping.table) // 5, float(dt))
+        dv.host_stale = True
 
     def wrap_periodic(self, state, lo, hi, axes) -> None:
         """The device rows' positions along `axes` wrapped (cuda_integrate.k_wrap); the next

@@ -311,7 +311,7 @@ def run_motion(ctx, task):
 
 
 def run_damping(ctx, task):
-    ctx.features.damping.apply(ctx.state, ctx.state.dt)
+    ctx.features.damping.apply(ctx)
 
 
 def run_wrap(ctx, task):
