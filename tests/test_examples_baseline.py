@@ -60,6 +60,7 @@ DIGESTS = {
     "spheric2": (55816, "999401fb34e2aa13"),
     "still_water": (1630, "f1d444d725cf5473"),
     "wave_flume2d": (7076, "d4291e71f05d2103"),
+    "wave_flume2d_mdbc": (7076, "050163bb7524c43e"),   # recorded when the file came (mDBC on the moving paddle)
     "yeh_petroff": (20940, "71c588d40e8cca9c"),
     # at dp 0.02 the 1 cm bed has no row (its first row needs dp <= 0.01, 125,703 particles and
     # ~50 s here): yeh_petroff's particles under the DuFort-Frankel diffusion step

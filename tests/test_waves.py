@@ -1,11 +1,11 @@
 """Wave generation and absorption (issue 9 §1/§2).
 
-* `test_flume_regular_wave_within_5_percent_at_one_wavelength` (issue 9 §8): the piston
+* `test_flume_regular_wave_*_within_5_percent_at_one_wavelength` (issue 9 §8): the piston
   flume of benchmarks/wave_flume.py (H = 0.08 m, T = 1 s, d = 0.3 m, dp = 0.015, second-order
-  generation, no artificial viscosity, water's laminar viscosity) to 6.5 s; at one wavelength
-  from the paddle the zero up-crossing height and the period of the full-height waves are
-  within 5 % of the target (measured -4.3 % and < 0.5 %; numbers and the other settings in
-  BENCHMARKS.md §7 and docs/features.md).
+  generation, no artificial viscosity, water's laminar viscosity, mDBC walls and paddle) to
+  8 s; at one wavelength from the paddle the zero up-crossing height and the period of waves
+  3-6 are within 5 % of the target (numbers and the other settings in BENCHMARKS.md §7, §19
+  and docs/features.md).
 * damping zones: the relaxation factor, and a zone takes the kinetic energy out of the
   fluid inside it while the rest keeps moving; a zone across two slabs gives the same
   particles on 1 and 3 mock ranks; a flume's zone reflects < 5 % of a regular wave (the
@@ -72,12 +72,13 @@ def test_damping_zone_removes_kinetic_energy_in_the_zone():
 @pytest.fixture(scope="module")
 def flume_waves():
     """Issue 9 §8's flume to 8 s: dp 0.015, order-2 stroke, no artificial viscosity, water's
-    laminar viscosity; the zero up-crossing statistics of waves 3-6 one wavelength from the
+    laminar viscosity, mDBC walls and paddle (`boundary = "mdbc"`: the paddle's ghost nodes
+    move with it); the zero up-crossing statistics of waves 3-6 one wavelength from the
     paddle (after the ramp's waves)."""
     import wave_flume
     end = 8.0
     r = wave_flume.flume(dp=0.015, end_time=end, height=0.08, period=1.0, depth=0.3, order=2,
-                         physics={"visc_alpha": 0.0, "laminar_nu": 1e-6})
+                         physics={"visc_alpha": 0.0, "laminar_nu": 1e-6, "boundary": "mdbc"})
     g = next(iter(r["eta"]))                       # one wavelength from the paddle's face
     assert g == pytest.approx(1.5 * 0.015 + r["L"])
     cg = waves.group_velocity(1.0, 0.3)
@@ -88,22 +89,20 @@ def flume_waves():
 
 @pytest.mark.slow
 def test_flume_regular_wave_period_within_5_percent_at_one_wavelength(flume_waves):
-    """The period of waves 3-6 at one wavelength within 5 % of the paddle's (measured within
-    0.12 % in all seven round-off-perturbed runs of benchmarks/flume_spread.py)."""
+    """The period of waves 3-6 at one wavelength within 5 % of the paddle's (measured with
+    mDBC: -0.21 ... -0.53 % over twelve round-off-perturbed runs of benchmarks/flume_spread.py
+    on two CPUs)."""
     assert flume_waves["period"] == pytest.approx(1.0, rel=0.05)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="issue 9's 5 % height is not met robustly at dp 0.015: over seven "
-                   "starts a few ulps apart (benchmarks/flume_spread.py, 2026-12-06) the mean height at one "
-                   "wavelength was -4.05 ... -6.53 %, mean -5.38 %; which side of 5 % a run lands on follows "
-                   "the CPU's round-off (docs/features.md)")
 def test_flume_regular_wave_height_within_5_percent_at_one_wavelength(flume_waves):
     """The mean zero up-crossing height of waves 3-6 at one wavelength within 5 % of the
-    paddle's H. Particle chaos moves it with round-off: -4.21 % (earlier vm, AVX-512),
-    -5.37 % (AMD vm without AVX-512), -4.05 ... -6.53 % over seven round-off-perturbed starts on
-    one CPU. Kept as an expected failure that still runs and reports (XPASS where it lands
-    inside), not as a passing check, until the height is within 5 % whatever the round-off."""
+    paddle's H. Particle chaos moves it with round-off, so it was measured over starts a few
+    ulps apart (benchmarks/flume_spread.py --boundary mdbc, 2026-12-06): -1.48 ... -2.44 %
+    (mean -1.91 %, six starts, the GPU host's Xeon) and -0.88 ... -2.61 % (mean -1.84 %, six
+    starts, the AMD vm). With DBC walls and paddle the same flume gave -4.05 ... -6.53 %
+    (mean -5.38 %): not within 5 % whatever the round-off (BENCHMARKS.md §18)."""
     assert flume_waves["height"] == pytest.approx(0.08, rel=0.05)
 
 
