@@ -109,6 +109,11 @@ class Slabs:
         x = state.particles.pos[:, self.axis]
         return np.nonzero(x < self.lo + self.reach)[0] if direction < 0 else np.nonzero(x >= self.hi - self.reach)[0]
 
+    def edge_sources(self, state, direction: int) -> np.ndarray:
+        """The owned row each row of `edge(state, direction)` is (a copy of), in the edge's
+        order: what the edge's rows' later values (mDBC's send_mdbc) are read from."""
+        return self.edge_rows(state, direction)
+
     def edge(self, state, direction: int) -> Halo:
         """Rows within `reach` of the neighbour's slab in `direction` (-1 lower, +1 upper)."""
         p = state.particles

@@ -157,6 +157,15 @@ class PeriodicSlabs(Slabs):
                 rows.pos[:, self.axis] += s
         return out
 
+    def edge_sources(self, state, direction: int) -> np.ndarray:
+        """The edge's rows, then the rows its images (along the other periodic axes) copy,
+        in `edge`'s order."""
+        sel = self.edge_rows(state, direction)
+        if self.per.image_axes and len(sel):
+            r, _ = self.per.image_rows(np.asarray(state.particles.pos[sel]))
+            sel = np.concatenate([sel, sel[r]])
+        return sel
+
     def edge(self, state, direction: int) -> Halo:
         h = super().edge(state, direction)
         if self.per.image_axes and h.n:   # images of the edge rows along the other periodic axes

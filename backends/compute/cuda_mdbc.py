@@ -392,7 +392,7 @@ class CudaMdbc:
         p = state.particles
         if rec[0] == "host":      # the edge came from the host rows (Slabs.edge): so do its values
             self.sync_host(state)
-            sel = domain.edge_rows(state, direction)
+            sel = domain.edge_sources(state, direction)
             b = sel[p.kind[sel] != 0]
             out = np.empty((len(b), 1 + dim), p.rho.dtype)
             out[:, 0] = p.rho[b]

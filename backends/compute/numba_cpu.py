@@ -289,7 +289,7 @@ class NumbaCPU(ComputeBackend):
 
     def mdbc_edge(self, state, domain, direction: int):
         p = state.particles
-        sel = domain.edge_rows(state, direction)
+        sel = domain.edge_sources(state, direction)
         b = sel[p.kind[sel] != 0]
         out = np.empty((len(b), 1 + p.dim), p.rho.dtype)
         out[:, 0] = p.rho[b]
