@@ -38,8 +38,7 @@ from .graph.kinds import TaskKind as K
 from .particles import MOVING
 
 SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
-MDBC_SUPPORTED = ("--backend numba-cpu (one rank or several) or numba-cuda (one rank or several; MPI ranks with "
-                  "--halo-transport staged), [[motion]] bodies with "
+MDBC_SUPPORTED = ("--backend numba-cpu or numba-cuda (one rank or several), [[motion]] bodies with "
                   "boundary = \"mdbc\" (no-slip walls' continuity takes a still wall)")
 MDBC_KINDS = (K.MDBC, K.SEND_MDBC, K.RECV_MDBC_1, K.RECV_MDBC_2)
 
@@ -211,13 +210,6 @@ class Features:
             if why is not None:
                 raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "
                                  f"(or use boundary = \"dbc\"), got {why}")
-            if nranks != 1 and not one_process and halo_transport == "ipc":
-                # ipc's send_mdbc message is a device event (cuda_mdbc.MdbcDone), which has no
-                # wire form: MPI ranks exchange the values through the host (staged)
-                raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" on MPI ranks runs with "
-                                 f"--halo-transport staged (ipc's mDBC exchange signals the neighbour by a device "
-                                 f"event, which cannot leave its process): expected --halo-transport staged or "
-                                 f"auto, got --halo-transport ipc on {nranks} MPI ranks")
 
     def check_schedule(self, schedule, nranks: int) -> None:
         """mDBC on several ranks: the schedule must bring both halos before the stage's first

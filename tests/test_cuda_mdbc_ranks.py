@@ -19,11 +19,14 @@ default halo transport of MPI ranks: staged) a smaller tank (`mpi_scene`: 0.5 x 
 water in 0.8 x 0.4 m, 130 particles, the cut at x = 0.37 m through the fluid and the
 bottom), hydrostatic start so that 2 steps suffice: the ghost sums differ with and without
 the neighbour's fluid from the first stage (without a start's density gradient the first
-two steps see uniform fields, which any subset of the rows interpolates alike). ipc's
-exchange is a device event, which cannot cross processes: refused on MPI ranks.
+two steps see uniform fields, which any subset of the rows interpolates alike). With ipc
+halos between processes the event of the exchange cannot travel: the sender's host waits
+for the copy before its message leaves (`MdbcDone.to_wire`), checked on a GPU under
+`mpiexec -n 2` (IPC handles need a real device).
 """
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import cudasim_helpers as H
@@ -126,21 +129,23 @@ def test_simulator_mock_ranks_match_cpu(ranks, transport, boundary, integrator, 
                                 sim=True, timeout=900))
 
 
-def test_mdbc_on_mpi_ranks_with_ipc_halos_is_refused_on_numba_cuda():
-    """MPI ranks run mDBC with staged halos (the default there); ipc's exchange is a device
-    event, which cannot leave its process: refused with one line. Mock ranks take either."""
-    from sphgraph import InputError
-    from sphgraph.backends.compute.numba_cuda import NumbaCUDA
-    from sphgraph.features import Features
-    f = Features(scene())
-    with pytest.raises(InputError, match=r"^<test>: physics.boundary: \"mdbc-noslip\" on MPI ranks runs with "
-                                         r"--halo-transport staged .*expected --halo-transport staged or auto, "
-                                         r"got --halo-transport ipc on 2 MPI ranks$") as e:
-        f.check_backend(NumbaCUDA, 2, one_process=False, halo_transport="ipc")
-    assert "\n" not in str(e.value)
-    f.check_backend(NumbaCUDA, 2, one_process=False, halo_transport="staged")
-    f.check_backend(NumbaCUDA, 3, one_process=True, halo_transport="ipc")
-    f.check_backend(NumbaCUDA, 1, one_process=False, halo_transport="ipc")
+def test_mdbc_done_crosses_processes_without_its_event():
+    """ipc's send_mdbc message between processes: the sender's host waits for the event
+    before the message leaves, and the receiver's message carries none (nothing to wait
+    for); mock ranks keep the event."""
+    from sphgraph.backends.compute.cuda_mdbc import MdbcDone
+    from sphgraph.wire import decode, encode
+
+    class Event:
+        waited = 0
+
+        def synchronize(self):
+            self.waited += 1
+    ev = Event()
+    code, buf = encode(MdbcDone(ev), 1)
+    assert ev.waited == 1 and buf.dtype == np.uint8
+    got = decode(code, buf)
+    assert isinstance(got, MdbcDone) and got.event is None
 
 
 @pytest.mark.mpi
@@ -190,6 +195,20 @@ def test_simulator_mpi_ranks_match_cpu():
     r = run_driver(2, ["cuda-mdbc"], timeout=300, env={"NUMBA_ENABLE_CUDASIM": "1"})["cuda-mdbc"]
     assert r["simulator"], r
     check_mpi(r, 2)
+
+
+@pytest.mark.gpu
+@pytest.mark.mpi
+@gpu
+def test_gpu_mpi_ipc_ranks_match_cpu():
+    """On a real GPU under `mpiexec -n 2`, --halo-transport ipc, float64, 5 steps of
+    `mpi_scene(2)`: the ipc mDBC exchange between processes (MdbcDone.to_wire)."""
+    from test_multirank import run_driver
+    r = run_driver(2, ["cuda-mdbc"], timeout=900, env={"SPHGRAPH_MDBC_STEPS": "5",
+                                                       "SPHGRAPH_MDBC_TRANSPORT": "ipc"})["cuda-mdbc"]
+    check(r)
+    assert r["ranks"] == 2 and r["transport"] == "ipc", r
+    assert all(x["ghosts_near_halo_fluid"] > 0 for x in r["per_rank"]), r
 
 
 @pytest.mark.gpu

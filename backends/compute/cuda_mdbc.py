@@ -20,9 +20,8 @@ rows to the neighbours' halos, which hold those from before the sender's mdbc: s
 from the device in the edge's order and uploaded into the halo's buffer (the message is a
 plain array: mock and MPI ranks alike); ipc, copied again into the sender's edge slot
 (`k_edge_bound`), which the neighbour's halo views, behind an event that the neighbour's
-stream waits for. That event cannot leave its process (`MdbcDone` has no wire form), so
-MPI ranks run mDBC with staged halos, their default (`Features.check_backend` refuses
-ipc there at start).
+stream waits for; between processes (MPI) the sender's host waits for the copy before
+the message leaves (`MdbcDone.to_wire`), as for the edge itself.
 """
 import copy
 import math  # noqa: F401  (the cloned device functions use it)
@@ -37,12 +36,12 @@ from sphgraph.errors import CommError
 from sphgraph.particles import MOVING
 from sphgraph.physics.eos import tait
 from sphgraph.physics.mdbc import ghost_add, ghost_positions, ghost_value
-from sphgraph.wire import WirePayload
+from sphgraph.wire import WirePayload, codec
 
 from . import cuda_halo as CH
 from . import cuda_kernels as CK
 from .cuda_lanes import new_event
-from .cuda_memory import VEC, _every4, count_bytes, host_wait, kept_views
+from .cuda_memory import COUNTERS, VEC, _every4, count_bytes, host_wait, kept_views
 
 RT = np.float64
 
@@ -249,11 +248,16 @@ def ghost_table(particles, boxes) -> np.ndarray:
     return table.ravel()
 
 
+@codec
 class MdbcDone(WirePayload):
-    """send_mdbc's message with --halo-transport ipc (mock ranks, one process): the new
-    boundary values are already in the sender's slot buffer, which the neighbour's halo
-    views; the message carries the event recorded after they were copied there. It has no
-    wire form (`to_wire` raises): MPI ranks with mDBC are refused ipc at start."""
+    """send_mdbc's message with --halo-transport ipc: the new boundary values are already in
+    the sender's slot buffer, which the neighbour's halo views. Mock ranks (one process): the
+    message carries the event recorded after they were copied there, which the receiver's
+    stream waits for. Between processes (MPI) an event cannot travel: as DeviceEdge does,
+    the sender's host waits for the copy before the message leaves (`to_wire`), and the
+    receiver's message has no event (`from_wire`): the values are in place."""
+
+    wire_code = 2
 
     def __init__(self, event):
         self.event = event
@@ -264,8 +268,15 @@ class MdbcDone(WirePayload):
     def nbytes(self) -> int:
         return 8
 
-    def to_wire(self, dest: int):
-        raise CommError("mDBC with --halo-transport ipc runs on mock ranks (one process) only")
+    def to_wire(self, dest: int) -> np.ndarray:
+        if self.event is not None:
+            COUNTERS["host_wait"] += 1
+            self.event.synchronize()
+        return np.zeros(8, np.uint8)
+
+    @classmethod
+    def from_wire(cls, buf: np.ndarray) -> "MdbcDone":
+        return cls(None)
 
 
 class CudaMdbc:
@@ -417,6 +428,8 @@ class CudaMdbc:
         if isinstance(halo, CH.DeviceEdge):
             if not isinstance(values, MdbcDone):
                 raise CommError("mDBC halo: an ipc halo needs the ipc exchange's message, got host values")
+            if values.event is None:      # from another process: its host waited (MdbcDone.to_wire)
+                return
             s = self._s(state)
             if s:
                 values.event.wait(s)
