@@ -148,32 +148,6 @@ def test_mdbc_done_crosses_processes_without_its_event():
     assert isinstance(got, MdbcDone) and got.event is None
 
 
-@pytest.mark.mpi
-def test_cli_mdbc_on_mpi_ranks_with_ipc_halos_exits_2(tmp_path):
-    """`mpiexec -n 2 sphgraph run SCENE --comm mpi --backend numba-cuda --halo-transport ipc`
-    with mDBC: one line, every rank exits 2, nothing written."""
-    import os
-    import subprocess
-    import sys
-
-    from sphgraph.toml_writer import dumps_toml
-    from test_multirank import mpiexec
-    exe = mpiexec()
-    if exe is None:
-        pytest.skip("no mpiexec")
-    path = tmp_path / "m.toml"
-    path.write_text(dumps_toml(mpi_scene().to_dict()))
-    out = tmp_path / "out"
-    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")
-    p = subprocess.run([exe, "-n", "2", sys.executable, "-m", "sphgraph", "run", str(path), "--comm", "mpi",
-                        "--backend", "numba-cuda", "--halo-transport", "ipc", "--schedule", SCHEDULE, "--out",
-                        str(out)], env=env, capture_output=True, text=True, timeout=120)
-    assert p.returncode == 2, p.stderr
-    lines = [x for x in p.stderr.splitlines() if x.strip()]
-    assert len(lines) == 1 and "physics.boundary" in lines[0] and "--halo-transport staged" in lines[0], p.stderr
-    assert not out.exists()
-
-
 def check_mpi(r, n):
     """A `cuda-mdbc` result of tests/mpi_driver.py on `n` ranks: equal to numba-cpu on one
     rank (`check`), the staged exchange run by every rank, and ghosts of every rank within
