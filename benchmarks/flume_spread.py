@@ -23,18 +23,18 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
-def one(jitter: float, boundary: str = "dbc", end: float = 8.0) -> dict:
+def one(jitter: float, boundary: str = "dbc", end: float = 8.0, dp: float = 0.015) -> dict:
     sys.path.insert(0, HERE)
     import wave_flume
     from sphgraph import waves
     t0 = time.perf_counter()
-    r = wave_flume.flume(dp=0.015, end_time=end, height=0.08, period=1.0, depth=0.3, order=2,
+    r = wave_flume.flume(dp=dp, end_time=end, height=0.08, period=1.0, depth=0.3, order=2,
                          physics={"visc_alpha": 0.0, "laminar_nu": 1e-6, "boundary": boundary},
                          initial={"jitter": jitter} if jitter > 0 else None)
     g = next(iter(r["eta"]))
     cg = waves.group_velocity(1.0, 0.3)
     st = waves.wave_stats(r["t"], r["eta"][g], r["L"] / cg + 2.0, end)   # the test's window
-    return {"jitter": jitter, "boundary": boundary, "H_err": st["height"] / 0.08 - 1.0, "T_err": st["period"] / 1.0 - 1.0,
+    return {"jitter": jitter, "boundary": boundary, "dp": dp, "particles": r["particles"], "H_err": st["height"] / 0.08 - 1.0, "T_err": st["period"] / 1.0 - 1.0,
             "heights": [float(h) for h in st["heights"]], "steps": r["steps"],
             "wall_s": time.perf_counter() - t0}
 
@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     ap.add_argument("--jitter", type=float, nargs="+", default=[0.0, 1e-12, 2e-12, 3e-12])
     ap.add_argument("--workers", type=int, default=1, help="runs side by side (processes)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--dp", type=float, default=0.015, help="particle spacing (the test's: 0.015)")
     ap.add_argument("--boundary", default="dbc", choices=("dbc", "mdbc"),
                     help="[physics] boundary of the tank and the paddle (mdbc: the paddle's ghosts move with it)")
     a = ap.parse_args(argv)
@@ -59,11 +60,11 @@ def main(argv=None) -> int:
     if a.workers > 1:
         from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(a.workers) as ex:
-            for fut in as_completed([ex.submit(one, j, a.boundary) for j in a.jitter]):
+            for fut in as_completed([ex.submit(one, j, a.boundary, 8.0, a.dp) for j in a.jitter]):
                 done(fut.result())
     else:
         for j in a.jitter:
-            done(one(j, a.boundary))
+            done(one(j, a.boundary, 8.0, a.dp))
     hs = [100 * r["H_err"] for r in out]
     print(f"H error over {len(hs)} runs: {min(hs):+.2f} ... {max(hs):+.2f} %, mean {sum(hs) / len(hs):+.2f} %")
     return 0
