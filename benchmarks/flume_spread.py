@@ -34,7 +34,8 @@ def one(jitter: float, boundary: str = "dbc", end: float = 8.0, dp: float = 0.01
     g = next(iter(r["eta"]))
     cg = waves.group_velocity(1.0, 0.3)
     st = waves.wave_stats(r["t"], r["eta"][g], r["L"] / cg + 2.0, end)   # the test's window
-    return {"jitter": jitter, "boundary": boundary, "dp": dp, "particles": r["particles"], "H_err": st["height"] / 0.08 - 1.0, "T_err": st["period"] / 1.0 - 1.0,
+    return {"jitter": jitter, "boundary": boundary, "dp": dp, "particles": r["particles"],
+            "H_err": st["height"] / 0.08 - 1.0, "T_err": st["period"] / 1.0 - 1.0,
             "heights": [float(h) for h in st["heights"]], "steps": r["steps"],
             "wall_s": time.perf_counter() - t0}
 
