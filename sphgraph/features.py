@@ -132,9 +132,7 @@ class Mdbc:
         st.halos = {k: h for k, h in held.items() if k != IMAGE_SIDE}
         try:
             if per is not None and per.image_axes:
-                ctx.compute.sync_host(st)     # a device backend's host rows are a copy
-                p = st.particles
-                im = per.images(p.pos, p.vel, p.rho, p.kind)
+                im = per.source_images(ctx)
                 ctx.compute.prepare_halo(st, im)
                 st.halos[IMAGE_SIDE] = im
             ctx.compute.mdbc(st, self.boxes, self.det_min, self.noslip, self.moving_ghosts(st))

@@ -99,13 +99,17 @@ class Periodic:
         return Halo(pos=np.ascontiguousarray(pos[r] + s.astype(pos.dtype)), vel=vel[r], rho=rho[r],
                     kind=kind[r])
 
+    def source_images(self, ctx) -> Halo:
+        """The images of the rank's rows now, from the rows near a periodic face alone
+        (`ComputeBackend.periodic_rows`: on a device, only those cross the bus)."""
+        src = ctx.compute.periodic_rows(ctx.state, self.lo, self.hi, self.reach, self.image_axes)
+        return self.images(src.pos, src.vel, src.rho, src.kind)
+
     def image_forces(self, ctx) -> None:
         """The ``forces_images`` task, force part ``halo_3``: the rank's rows against the
         images of its own rows (placed only when there are image axes)."""
         st = ctx.state
-        ctx.compute.sync_host(st)     # a device backend's host rows are a copy: bring them up to date
-        p = st.particles
-        halo = self.images(p.pos, p.vel, p.rho, p.kind)
+        halo = self.source_images(ctx)
         ctx.compute.prepare_halo(st, halo)
         st.halos[IMAGE_SIDE] = halo
         ctx.compute.forces(st, f"halo_{IMAGE_SIDE}")

@@ -227,6 +227,20 @@ class ComputeBackend:
         corrector's forces read them next). The host rows are the truth here."""
         motion.move(state, t)
 
+    def periodic_rows(self, state, lo, hi, reach: float, axes):
+        """The owned rows within `reach` of a face ([lo, hi) along each of `axes`), in row
+        order, as a Halo (positions, velocities, densities, kinds): the sources of the
+        periodic images (sphgraph.periodic), which come from these rows alone. Here: the
+        host rows."""
+        from sphgraph.state import Halo
+        p = state.particles
+        near = np.zeros(p.n, bool)
+        for a in axes:
+            x = p.pos[:, a]
+            near |= (x < lo[a] + reach) | (x >= hi[a] - reach)
+        r = np.nonzero(near)[0]
+        return Halo(pos=p.pos[r], vel=p.vel[r], rho=p.rho[r], kind=p.kind[r])
+
     def damp(self, state, damping, dt: float) -> None:
         """The fluid rows' velocities times their factor of the relaxation zones of `damping`
         (sphgraph.waves.Damping; sphgraph.physics.damping). Here: the host rows."""

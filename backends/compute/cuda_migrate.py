@@ -14,7 +14,7 @@ of `dim` values.
 """
 from numba import cuda
 
-KERNELS = ("k_mig_keep", "k_compact_perm", "k_pack_leaving", "k_unpack_rows")
+KERNELS = ("k_mig_keep", "k_near_faces", "k_compact_perm", "k_pack_leaving", "k_unpack_rows")
 
 
 def k_mig_keep(pa, n, lo, hi, keep, count):
@@ -24,6 +24,26 @@ def k_mig_keep(pa, n, lo, hi, keep, count):
         return
     x = pa[i]
     if x < lo or x >= hi:
+        keep[i] = 0
+        cuda.atomic.add(count, 0, 1)
+    else:
+        keep[i] = 1
+
+
+def k_near_faces(px, py, pz, n, t0, t1, t2, u0, u1, u2, w0, w1, w2, keep, count):
+    """keep[i] = 0 (counted) for rows within reach of a face along a flagged axis (w0..w2):
+    x < t or x >= u (t = lo + reach, u = hi - reach, as sphgraph.periodic), else 1."""
+    i = cuda.grid(1)
+    if i >= n:
+        return
+    near = False
+    if w0 and (px[i] < t0 or px[i] >= u0):
+        near = True
+    if w1 and (py[i] < t1 or py[i] >= u1):
+        near = True
+    if w2 and (pz[i] < t2 or pz[i] >= u2):
+        near = True
+    if near:
         keep[i] = 0
         cuda.atomic.add(count, 0, 1)
     else:

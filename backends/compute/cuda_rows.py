@@ -74,11 +74,42 @@ class CudaRows:
         self._host_rows_changed(state, dv)
         return out
 
-    def _rows_to_host(self, state, dv, k, keep, pos, m, domain):
-        """The m rows with keep == 0 (pos: exclusive scan of keep) as host Particles by
-        side, each in increasing row order: one packing launch, one copy to the pinned
-        staging buffer; the side of a row is read from its position on the host (the
-        same comparison as k_mig_keep)."""
+    def periodic_rows(self, state, lo, hi, reach, axes):
+        """ComputeBackend.periodic_rows from the device rows: the rows near a face flagged
+        (k_near_faces), packed in row order (the scan and k_pack_leaving of _remove_rows),
+        and only they cross the bus (the host copy when it is current)."""
+        from sphgraph.state import Halo
+        dv = state.extra.get("dev")
+        if dv is None or not dv.host_stale or not dv.n:
+            return super().periodic_rows(state, lo, hi, reach, axes)
+        k = self._k(state)
+        n, A = dv.n, dv.arrays
+        if "mig_cnt" not in A:
+            A["mig_cnt"] = dev_array(1, np.int32)
+        keep = dv.dev_buf("images_keep", 4 * n).view(np.int32)   # not the pos4 scratch: live mid-stage
+        pos = dv.dev_buf("images_pos", 4 * n).view(np.int32)
+        cnt = A["mig_cnt"]
+        k.k_fill[1, 1](cnt, 1, 0)
+        t, u, w = [0.0] * 3, [0.0] * 3, [0] * 3
+        for a in axes:
+            t[a], u[a], w[a] = float(lo[a] + reach), float(hi[a] - reach), 1
+        k.k_near_faces[CK.blocks(n), CK.BLOCK](A["px"], A["py"], A["pz"], n, *t, *u, *w, keep, cnt)
+        s = self._s(state)
+        cnt.copy_to_host(dv.pinned_i4[:1], stream=s)
+        host_wait(s)
+        m = int(dv.pinned_i4[0])
+        count_bytes(state, "d2h_bytes", "images", 4)
+        if m == 0:
+            p = state.particles
+            return Halo(pos=np.zeros((0, dv.dim), p.pos.dtype), vel=np.zeros((0, dv.dim), p.vel.dtype),
+                        rho=np.zeros(0, p.rho.dtype), kind=np.zeros(0, np.int8))
+        self._scan(dv, k, keep, pos, n)
+        r = self._packed_rows(state, dv, k, keep, pos, m, "images")
+        return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
+
+    def _packed_rows(self, state, dv, k, keep, pos, m, what):
+        """The m rows with keep == 0 (pos: exclusive scan of keep) as one host Particles in
+        increasing row order: one packing launch, one copy to the pinned staging buffer."""
         from sphgraph.particles import Particles
         p = state.particles
         n, dim, A = dv.n, dv.dim, dv.arrays
@@ -92,21 +123,24 @@ class CudaRows:
         s = self._s(state)
         dbuf.copy_to_host(hb, stream=s)
         host_wait(s)
-        count_bytes(state, "d2h_bytes", "displaced", nb)
+        count_bytes(state, "d2h_bytes", what, nb)
         h = split(hb, lay)
         P = h["pos"].reshape(m, dim)
-        F = h["f"].reshape(m, dim + 5)
-        x = P[:, domain.axis]
-        out = {}
-        for side, sel in ((-1, x < float(domain.lo)), (1, x >= float(domain.hi))):
-            f = F[sel]                    # boolean indexing copies: nothing aliases the staging buffer
-            out[side] = Particles(id=h["id"][sel].astype(np.int64), kind=h["kind"][sel],
-                                  pos=P[sel].astype(p.pos.dtype, copy=False),
-                                  vel=np.ascontiguousarray(f[:, dim:2 * dim]).astype(p.vel.dtype, copy=False),
-                                  rho=np.ascontiguousarray(f[:, dim + 3]).astype(p.rho.dtype, copy=False),
-                                  vel_m1=np.ascontiguousarray(f[:, :dim]).astype(p.vel_m1.dtype, copy=False),
-                                  rho_m1=np.ascontiguousarray(f[:, dim + 4]).astype(p.rho_m1.dtype, copy=False))
-        return out
+        F = h["f"].reshape(m, dim + 5)      # copies below: nothing aliases the staging buffer
+        return Particles(id=h["id"].astype(np.int64), kind=h["kind"].copy(), pos=P.astype(p.pos.dtype, copy=True),
+                         vel=np.ascontiguousarray(F[:, dim:2 * dim]).astype(p.vel.dtype, copy=True),
+                         rho=np.ascontiguousarray(F[:, dim + 3]).astype(p.rho.dtype, copy=True),
+                         vel_m1=np.ascontiguousarray(F[:, :dim]).astype(p.vel_m1.dtype, copy=True),
+                         rho_m1=np.ascontiguousarray(F[:, dim + 4]).astype(p.rho_m1.dtype, copy=True))
+
+    def _rows_to_host(self, state, dv, k, keep, pos, m, domain):
+        """The m rows with keep == 0 (pos: exclusive scan of keep) as host Particles by
+        side, each in increasing row order (`_packed_rows`); the side of a row is read from
+        its position on the host (the same comparison as k_mig_keep)."""
+        rows = self._packed_rows(state, dv, k, keep, pos, m, "displaced")
+        x = rows.pos[:, domain.axis]
+        return {side: rows.take(np.nonzero(sel)[0])
+                for side, sel in ((-1, x < float(domain.lo)), (1, x >= float(domain.hi)))}
 
     def _host_rows_changed(self, state, dv):
         """The host rows no longer match the device's in number: a stale placeholder of
