@@ -116,7 +116,7 @@ class Periodic:
 
     def wrap(self, ctx) -> None:
         """The ``wrap`` task: positions on the image axes back into [min, max), on the
-        backend's rows (sphgraph.periodic_maths.wrap_axis)."""
+        backend's rows (sphgraph.physics.wrap.wrap_axis)."""
         if self.image_axes:
             ctx.compute.wrap_periodic(ctx.state, self.lo, self.hi, self.image_axes)
 

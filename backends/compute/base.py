@@ -254,8 +254,8 @@ class ComputeBackend:
 
     def wrap_periodic(self, state, lo, hi, axes) -> None:
         """Positions along `axes` back into [lo, hi) (periodic axes,
-        sphgraph.periodic_maths.wrap_axis). Here: the host rows."""
-        from sphgraph.periodic_maths import wrap_rows
+        sphgraph.physics.wrap.wrap_axis). Here: the host rows."""
+        from sphgraph.physics.wrap import wrap_rows
         lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
         wrap_rows(state.particles.pos, lo, hi, hi - lo, np.asarray(axes, np.int64))
 

@@ -5,7 +5,7 @@ their own (float64 positions, run-type velocities).
 """
 from numba import cuda
 
-from sphgraph.periodic_maths import wrap_axis
+from sphgraph.physics.wrap import wrap_axis
 from sphgraph.physics.damping import damping_factor
 
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,
@@ -83,7 +83,7 @@ def k_sym_correct(px, py, pz, vx, vy, vz, rho, px0, py0, pz0, vx0, vy0, vz0, rho
 
 def k_wrap(px, py, pz, n, lo0, lo1, lo2, hi0, hi1, hi2, p0, p1, p2, w0, w1, w2):
     """Positions on the wrapped axes (w0..w2 nonzero) brought back into [lo, hi)
-    (sphgraph.periodic_maths.wrap_axis, as on the host)."""
+    (sphgraph.physics.wrap.wrap_axis, as on the host)."""
     i = cuda.grid(1)
     if i >= n:
         return
