@@ -5,11 +5,10 @@ their own (float64 positions, run-type velocities).
 """
 from numba import cuda
 
-from sphgraph.physics.wrap import wrap_axis
 from sphgraph.physics.damping import damping_factor
-
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,
                                         predict_density, verlet_axis, verlet_density)
+from sphgraph.physics.wrap import wrap_axis
 
 KERNELS = ("k_verlet", "k_sym_predict", "k_sym_correct", "k_wrap", "k_damp")
 

@@ -48,19 +48,12 @@ class CudaRows:
         (k_pack_leaving), one copy."""
         k = self._k(state)
         n, A = dv.n, dv.arrays
-        if "mig_cnt" not in A:
-            A["mig_cnt"] = dev_array(1, np.int32)
         keep = dv.scratch(np.int32, n)             # the pos4 records are dead until the next
         pos = dv.scratch(np.int32, n, n)           # sort rebuilds them (ax holds fluid rows only)
-        cnt = A["mig_cnt"]
-        k.k_fill[1, 1](cnt, 1, 0)
+        cnt = self._zeroed_count(dv, k)
         b = CK.blocks(n)
         k.k_mig_keep[b, CK.BLOCK](A["p" + VEC[domain.axis]], n, float(domain.lo), float(domain.hi), keep, cnt)
-        s = self._s(state)
-        cnt.copy_to_host(dv.pinned_i4[:1], stream=s)
-        host_wait(s)
-        m = int(dv.pinned_i4[0])
-        count_bytes(state, "d2h_bytes", "displaced", 4)
+        m = self._read_count(state, dv, cnt, "displaced")
         if m == 0:
             empty = state.particles.take(np.zeros(0, np.int64))
             return {-1: empty, 1: empty}
@@ -84,28 +77,36 @@ class CudaRows:
             return super().periodic_rows(state, lo, hi, reach, axes)
         k = self._k(state)
         n, A = dv.n, dv.arrays
-        if "mig_cnt" not in A:
-            A["mig_cnt"] = dev_array(1, np.int32)
         keep = dv.dev_buf("images_keep", 4 * n).view(np.int32)   # not the pos4 scratch: live mid-stage
         pos = dv.dev_buf("images_pos", 4 * n).view(np.int32)
-        cnt = A["mig_cnt"]
-        k.k_fill[1, 1](cnt, 1, 0)
+        cnt = self._zeroed_count(dv, k)
         t, u, w = [0.0] * 3, [0.0] * 3, [0] * 3
         for a in axes:
             t[a], u[a], w[a] = float(lo[a] + reach), float(hi[a] - reach), 1
         k.k_near_faces[CK.blocks(n), CK.BLOCK](A["px"], A["py"], A["pz"], n, *t, *u, *w, keep, cnt)
+        m = self._read_count(state, dv, cnt, "images")
+        if m == 0:
+            r = state.particles.take(np.zeros(0, np.int64))
+        else:
+            self._scan(dv, k, keep, pos, n)
+            r = self._packed_rows(state, dv, k, keep, pos, m, "images")
+        return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
+
+    def _zeroed_count(self, dv, k):
+        """The rank's device row counter (one int32), set to 0 on the running stream."""
+        A = dv.arrays
+        if "mig_cnt" not in A:
+            A["mig_cnt"] = dev_array(1, np.int32)
+        k.k_fill[1, 1](A["mig_cnt"], 1, 0)
+        return A["mig_cnt"]
+
+    def _read_count(self, state, dv, cnt, what) -> int:
+        """The counter's value on the host (its 4 bytes booked under `what`)."""
         s = self._s(state)
         cnt.copy_to_host(dv.pinned_i4[:1], stream=s)
         host_wait(s)
-        m = int(dv.pinned_i4[0])
-        count_bytes(state, "d2h_bytes", "images", 4)
-        if m == 0:
-            p = state.particles
-            return Halo(pos=np.zeros((0, dv.dim), p.pos.dtype), vel=np.zeros((0, dv.dim), p.vel.dtype),
-                        rho=np.zeros(0, p.rho.dtype), kind=np.zeros(0, np.int8))
-        self._scan(dv, k, keep, pos, n)
-        r = self._packed_rows(state, dv, k, keep, pos, m, "images")
-        return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
+        count_bytes(state, "d2h_bytes", what, 4)
+        return int(dv.pinned_i4[0])
 
     def _packed_rows(self, state, dv, k, keep, pos, m, what):
         """The m rows with keep == 0 (pos: exclusive scan of keep) as one host Particles in

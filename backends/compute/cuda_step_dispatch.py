@@ -7,6 +7,7 @@ import numpy as np
 from numba import cuda
 
 from sphgraph.config import P_RHO0
+from sphgraph.physics.damping import ZONE
 
 from . import cuda_dufort as CD
 from . import cuda_halo as CH
@@ -82,7 +83,7 @@ class CudaStepDispatch:
         A = dv.A()
         self._k(state).k_damp[CK.blocks(dv.n), CK.BLOCK](A["px"], A["py"], A["pz"], A["vx"], A["vy"], A["vz"],
                                                          A["kind"], dv.n, dv.dim, have[1],
-                                                         len(damping.table) // 5, float(dt))
+                                                         len(damping.table) // ZONE, float(dt))
         dv.host_stale = True
 
     def wrap_periodic(self, state, lo, hi, axes) -> None:
