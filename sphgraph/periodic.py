@@ -100,10 +100,9 @@ class Periodic:
                     kind=kind[r])
 
     def source_images(self, ctx) -> Halo:
-        """The images of the rank's rows now, from the rows near a periodic face alone
-        (`ComputeBackend.periodic_rows`: on a device, only those cross the bus)."""
-        src = ctx.compute.periodic_rows(ctx.state, self.lo, self.hi, self.reach, self.image_axes)
-        return self.images(src.pos, src.vel, src.rho, src.kind)
+        """The images of the rank's rows now (`ComputeBackend.periodic_images`: made from
+        the rows near a periodic face alone; on a device, without leaving it)."""
+        return ctx.compute.periodic_images(ctx.state, self)
 
     def image_forces(self, ctx) -> None:
         """The ``forces_images`` task, force part ``halo_3``: the rank's rows against the

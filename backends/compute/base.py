@@ -241,6 +241,13 @@ class ComputeBackend:
         r = np.nonzero(near)[0]
         return Halo(pos=p.pos[r], vel=p.vel[r], rho=p.rho[r], kind=p.kind[r])
 
+    def periodic_images(self, state, periodic):
+        """The images of the owned rows across the faces of `periodic` (sphgraph.periodic.
+        Periodic) as the halo of force part halo_3, for `prepare_halo`. Here: the rows near a
+        face (`periodic_rows`) imaged on the host (Periodic.images)."""
+        src = self.periodic_rows(state, periodic.lo, periodic.hi, periodic.reach, periodic.image_axes)
+        return periodic.images(src.pos, src.vel, src.rho, src.kind)
+
     def damp(self, state, damping, dt: float) -> None:
         """The fluid rows' velocities times their factor of the relaxation zones of `damping`
         (sphgraph.waves.Damping; sphgraph.physics.damping). Here: the host rows."""

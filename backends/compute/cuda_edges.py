@@ -1,6 +1,6 @@
-"""numba.cuda kernels of edges and halos: a rank's edge rows packed for a neighbour, and
-(--halo-transport ipc: edge rows arrive device to device) a received edge binned into
-the halo's cells on the device.
+"""numba.cuda kernels of edges and halos: a rank's edge rows packed for a neighbour, a
+rank's rows near a periodic face packed as their images, and rows so packed binned into a
+halo's cells on the device (cuda_images).
 """
 import math
 
@@ -9,7 +9,7 @@ from numba import cuda
 
 from sphgraph.physics.eos import tait
 
-KERNELS = ("k_pack_edge", "k_stamp", "k_edge_init", "k_edge_bounds", "k_edge_keys", "k_edge_gather")
+KERNELS = ("k_pack_edge", "k_pack_images", "k_edge_init", "k_edge_bounds", "k_edge_keys", "k_edge_gather")
 
 
 def k_pack_edge(px, py, pz, vel4, kind, a0, m0, a1, m, dim, o64, o4, okind):
@@ -33,15 +33,37 @@ def k_pack_edge(px, py, pz, vel4, kind, a0, m0, a1, m, dim, o64, o4, okind):
     okind[j] = kind[i]
 
 
-def k_stamp(a, v):
-    """a[0] = v: the generation number in an edge slot's header (cuda_halo)."""
-    if cuda.grid(1) == 0:
-        a[0] = v
+def k_pack_images(keep, pos, n, cap, dim, px, py, pz, vel4, kind, axis, t, period, o64, o4, okind):
+    """The image of each row with keep == 0 (k_near_faces; pos: exclusive scan of keep) into
+    slot i - pos[i], as k_pack_edge packs a row: moved by +period along `axis` when the row
+    lies below t (lo + reach), else by -period (sphgraph.periodic.Periodic.image_rows with
+    one image axis). The float64 sum is the host path's. Slots from `cap` on are not
+    written (the caller's bound on the rows: it reads their count after)."""
+    i = cuda.grid(1)
+    if i >= n or keep[i] != 0:
+        return
+    j = i - pos[i]
+    if j >= cap:
+        return
+    b = j * dim
+    x = px[i] if axis == 0 else (py[i] if axis == 1 else pz[i])
+    s = period if x < t else -period
+    o64[b] = px[i] + s if axis == 0 else px[i]
+    o64[b + 1] = py[i] + s if axis == 1 else py[i]
+    if dim == 3:
+        o64[b + 2] = pz[i] + s if axis == 2 else pz[i]
+    r = 4 * i
+    d = 4 * j
+    o4[d] = vel4[r]
+    o4[d + 1] = vel4[r + 1]
+    o4[d + 2] = vel4[r + 2]
+    o4[d + 3] = vel4[r + 3]
+    okind[j] = kind[i]
 
 
 def k_edge_init(head, meta):
     """k_edge_bounds' accumulators in meta (rows kept, fluid rows kept, box min3, box max3)
-    and, in meta[8], the generation number the received slot's header holds."""
+    and, in meta[8], head[0] (the rows near a face, k_near_faces' count: cuda_images)."""
     if cuda.grid(1) == 0:
         meta[0] = 0.0
         meta[1] = 0.0
@@ -51,13 +73,14 @@ def k_edge_init(head, meta):
         meta[8] = head[0]
 
 
-def k_edge_bounds(pos, kind, m, dim, axis, thr, below, meta):
-    """The rows of a received edge (pos: m records of dim float64, as k_pack_edge) that pass
-    its cut (coordinate `axis` < thr when `below`, else >= thr: cuda_rows.edge's cut):
-    how many, how many fluid, and their bounding box (0 along a missing z), into meta
+def k_edge_bounds(pos, kind, m, count, dim, axis, thr, below, meta):
+    """Of the first min(m, count[0]) rows packed (pos: records of dim float64, as
+    k_pack_edge), those that pass the cut (coordinate `axis` < thr when `below`, else >=
+    thr): how many, how many fluid, and their bounding box (0 along a missing z), into meta
     (set by k_edge_init; one atomic per block and quantity)."""
     sh = cuda.shared.array((8, 256), dtype=np.float64)
     t = cuda.threadIdx.x
+    m = min(m, count[0])
     cnt = 0.0
     fl = 0.0
     mn0 = math.inf

@@ -15,6 +15,7 @@ from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from . import cuda_riemann as CR
 from .cuda_force_dispatch import TRIM_OFF
+from .cuda_images import DeviceImages
 from .cuda_memory import VEC, count_bytes, dev_array, layout, split
 
 
@@ -28,6 +29,8 @@ class CudaHaloDispatch:
         from sphgraph.cells import build_grid
         if isinstance(halo, CH.DeviceEdge):     # --halo-transport ipc: cut and binned on the device
             CH.receive_edge(self, state, halo)
+            return
+        if isinstance(halo, DeviceImages):      # periodic images: made and binned on the device
             return
         dv = state.extra["dev"]
         dt = dv.dtype

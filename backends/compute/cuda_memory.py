@@ -21,7 +21,7 @@ VEC = ("x", "y", "z")
 
 
 # per process (mock ranks share it): what the step costs the host in allocations and waits
-COUNTERS = {"device_alloc": 0, "pinned_alloc": 0, "host_wait": 0}
+COUNTERS = {"device_alloc": 0, "pinned_alloc": 0, "host_wait": 0, "images_repacked": 0}
 
 
 def dev_array(n, dtype):
@@ -75,7 +75,9 @@ class DeviceState:
         self.pinned_bad = pinned_array(1, np.int64)
         self.pinned_i4 = pinned_array(4, np.int32)
         self.pinned_over = pinned_array(1, np.int32)   # dt's edge_over flag: read in dt_allreduce, after other tasks' pinned_i4
-        self.pinned_meta = pinned_array(9, np.float64)  # cuda_halo
+        self.pinned_meta = pinned_array(9, np.float64)  # the periodic images' count and box (cuda_images)
+        self.images_cap = None                      # cuda_images: the bound its rows are packed to
+        self.images_scan = []                       # cuda_images: its scan's block sums
         self.pinned_xfer = None                     # staging of packed messages (host_buf)
         self.halo_pool = []                         # reusable device buffers of halos (_halo_buffer)
         self.halo_last = None                       # the halo prepared last (may not be in state.halos yet)

@@ -92,6 +92,17 @@ class CudaRows:
             r = self._packed_rows(state, dv, k, keep, pos, m, "images")
         return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
 
+    def periodic_images(self, state, periodic):
+        """ComputeBackend.periodic_images made and binned on the device (cuda_images) when
+        the device rows are current and the scene has one image axis; else the host path."""
+        from .cuda_images import device_images
+        dv = state.extra.get("dev")
+        if dv is not None and dv.host_stale and dv.n:
+            out = device_images(self, state, periodic)
+            if out is not None:
+                return out
+        return super().periodic_images(state, periodic)
+
     def _zeroed_count(self, dv, k):
         """The rank's device row counter (one int32), set to 0 on the running stream."""
         A = dv.arrays

@@ -1,0 +1,85 @@
+"""Periodic images made on the device (backends/compute/cuda_images.py) against the host path
+they replace (ComputeBackend.periodic_images: the rows near a face copied to the host, imaged
+and binned there, uploaded): the same grid and row order, so the same bits, in numba's CUDA
+simulator; and what crossed the bus for them (the 72-byte count and bounding box and the
+4-byte row count, against every near-face row)."""
+from __future__ import annotations
+
+import pytest
+
+from cudasim_helpers import compare_in_subprocess, gpu
+
+
+def host_images_backend():
+    """numba-cuda making its images on the host, as before cuda_images."""
+    from sphgraph.backends.compute.base import ComputeBackend
+    from sphgraph.backends.compute.numba_cuda import NumbaCUDA
+
+    class HostImages(NumbaCUDA):
+        name = "numba-cuda"
+        periodic_images = ComputeBackend.periodic_images
+    return HostImages
+
+
+def run(backend, steps, boundary, precision):
+    """The driven channel of test_mdbc_periodic (rows cross the seam), `steps` steps: rows in
+    id order, the images' halo type and the bytes a stage brought to the host for images."""
+    import numpy as np
+
+    from sphgraph.solver import Simulation
+    from test_mdbc_periodic import drift_scene
+    sim = Simulation(drift_scene(boundary), backend=backend, precision=precision)
+    for _ in range(steps):
+        sim.step()
+    st = sim.contexts[0].state
+    f = sim.frame_arrays()
+    i = np.argsort(f["id"])
+    return ({k: f[k][i] for k in ("position", "velocity", "density")}, type(st.halos.get(3)).__name__,
+            st.extra.get("bytes_by_kind", {}).get("d2h:images", 0) / max(sim.step_count, 1))
+
+
+def compare(steps, boundary="mdbc", precision="float64", tight=False) -> dict:
+    """`tight`: the images packed to half their first count, then to exactly the count (no
+    margin), so that the first stage and any stage with more rows near a face than the last
+    packs them again ("repacked": how many times)."""
+    import numpy as np
+
+    from sphgraph.backends.compute import cuda_images
+    from sphgraph.backends.compute.cuda_memory import COUNTERS
+    if tight:
+        calls = []
+
+        def bound(m):
+            calls.append(m)
+            return max(m // 2, 1) if len(calls) == 1 else m
+        cuda_images._bound = bound
+    dev, dev_kind, dev_bytes = run("numba-cuda", steps, boundary, precision)
+    repacked = COUNTERS["images_repacked"]
+    host, host_kind, host_bytes = run(host_images_backend(), steps, boundary, precision)
+    return {"gap": max(float(np.abs(dev[k] - host[k]).max()) for k in dev), "kinds": [dev_kind, host_kind],
+            "bytes": [dev_bytes, host_bytes], "repacked": repacked}
+
+
+def check(r):
+    assert r["kinds"] == ["DeviceImages", "Halo"], r
+    assert r["gap"] == 0.0, r
+    # the device path's per step: the row count (4 B) and the count and box (72 B) a stage
+    # (with mDBC: images made twice a stage); the host path's: every near-face row
+    assert 0 < r["bytes"][0] <= 2 * 76 < r["bytes"][1], r
+
+
+@pytest.mark.parametrize("boundary,precision", [("mdbc", "float64"), ("dbc", "float32")])
+def test_simulator_device_images_are_the_host_images(boundary, precision):
+    check(compare_in_subprocess(__file__, f"compare(5, {boundary!r}, {precision!r})", sim=True, timeout=900))
+
+
+def test_simulator_images_outgrowing_their_bound_are_packed_again():
+    r = compare_in_subprocess(__file__, "compare(8, 'mdbc', 'float64', tight=True)", sim=True, timeout=900)
+    assert r["repacked"] > 0, r
+    assert r["kinds"] == ["DeviceImages", "Halo"] and r["gap"] == 0.0, r
+
+
+@gpu
+@pytest.mark.gpu
+def test_gpu_device_images_are_the_host_images():
+    check(compare_in_subprocess(__file__, "compare(100, 'mdbc-noslip', 'float32')", sim=False, timeout=600))
