@@ -7,6 +7,7 @@ rows: `images`).
 
     python benchmarks/periodic_cost.py [--dp 0.004] [--backend numba-cuda] [--precision float32]
                                        [--steps 30] [--warmup 10] [--boundary dbc] [--orders 2]
+                                       [--images device|host]
                                        [--json out.json]
 """
 from __future__ import annotations
@@ -44,6 +45,19 @@ def scene(dp, periodic, boundary):
     return Scene.from_dict(d, source=f"channel dp {dp}{' periodic' if periodic else ''}")
 
 
+def host_images(backend):
+    """`backend` (numba-cuda) making its periodic images on the host, as before
+    backends/compute/cuda_images.py: the same-call baseline of `--images host`."""
+    from sphgraph.backends.compute.base import ComputeBackend
+    from sphgraph.registry import get
+    base = get("compute", backend)
+
+    class HostImages(base):
+        periodic_images = ComputeBackend.periodic_images
+    HostImages.name = base.name
+    return HostImages
+
+
 def seconds_a_step(sc, backend, precision, warmup, steps):
     from sphgraph.solver import Simulation
     sim = Simulation(sc, backend=backend, precision=precision, invariants=False)
@@ -76,16 +90,19 @@ def main(argv=None):
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--warmup", type=int, default=10)
     ap.add_argument("--boundary", default="dbc")
+    ap.add_argument("--images", choices=("device", "host"), default="device",
+                    help="host: the periodic run's images made on the host (numba-cuda before cuda_images)")
     ap.add_argument("--orders", type=int, choices=(1, 2), default=2,
                     help="1: walls then periodic; 2: also periodic then walls (the ratio of the means)")
     ap.add_argument("--json")
     a = ap.parse_args(argv)
-    out = {"dp": a.dp, "backend": a.backend, "precision": a.precision, "boundary": a.boundary}
+    out = {"dp": a.dp, "backend": a.backend, "precision": a.precision, "boundary": a.boundary, "images": a.images}
     # both orders (walls, periodic, periodic, walls): a run's place in the process moved
     # single timings of a GPU step by as much as the difference asked about
     runs = {"walls": [], "periodic": []}
     for name in ("walls", "periodic", "periodic", "walls")[:2 * a.orders]:
-        r = seconds_a_step(scene(a.dp, name == "periodic", a.boundary), a.backend, a.precision, a.warmup, a.steps)
+        be = host_images(a.backend) if name == "periodic" and a.images == "host" else a.backend
+        r = seconds_a_step(scene(a.dp, name == "periodic", a.boundary), be, a.precision, a.warmup, a.steps)
         runs[name].append(r)
         print(name, json.dumps(r), flush=True)
     for name, rs in runs.items():
