@@ -71,13 +71,11 @@ def check(r):
 
 
 def test_simulator_device_images_are_the_host_images():
-    """One subprocess (one compile): mDBC in float64 with the images packed to tight bounds
-    (the first stage packs again), then DBC in float32."""
-    tight, f32 = compare_in_subprocess(__file__, "[compare(5, 'mdbc', 'float64', tight=True), compare(5, 'dbc', "
-                                       "'float32')]", sim=True, timeout=900)
-    assert tight["repacked"] > 0, tight
-    check(tight)
-    check(f32)
+    """mDBC in float64 (images made twice a stage), packed to tight bounds: the first stage
+    packs again. float32 runs in the gpu variant."""
+    r = compare_in_subprocess(__file__, "compare(5, 'mdbc', 'float64', tight=True)", sim=True, timeout=900)
+    assert r["repacked"] > 0, r
+    check(r)
 
 
 @gpu
