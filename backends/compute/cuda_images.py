@@ -1,10 +1,10 @@
 """Periodic images made on the device, for the numba.cuda backend.
 
 The images of a rank's rows across the faces of one periodic axis (sphgraph.periodic) are
-the halo of force part halo_3. Made on the host, each stage copied the rows near a face to
-the host, imaged and binned them there and uploaded the halo: two waits for the device and
-the host's binning in every stage (a 1.1 M periodic channel stepped 3.0x slower than the
-same water closed by walls on the H200; BENCHMARKS.md). Here they never leave the device:
+the halo of force part halo_3. Made on the host, each stage copies the rows near a face to
+the host, images and bins them there and uploads the halo: two waits for the device and the
+host's binning in every stage (BENCHMARKS.md §20 has what that cost). Here they never leave
+the device:
 
     k_near_faces   the rows within reach of a face, counted; the device scan places them
     k_pack_images  each one's image (+period below lo + reach, else -period), as an edge
