@@ -22,7 +22,7 @@ def device_grid(box_lo, box_hi, cell_size, axes):
     """The grid over a bounding box given along the particle axes, as
     sphgraph.cells.build_grid makes it: origin, upper corner and cells along (fast, mid,
     slow), and per particle axis the origin, cell count and key stride the key kernels take
-    (build_cells; a halo binned on the device, cuda_halo)."""
+    (build_cells; the periodic images binned on the device, cuda_images)."""
     lo, hi = np.zeros(3), np.zeros(3)
     for kk in range(3):
         a = axes[kk]

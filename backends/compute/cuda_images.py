@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from sphgraph.cells import CellGrid, grid_dims, reach_cells
+from sphgraph.cells import CellGrid, reach_cells
 
 from . import cuda_kernels as CK
+from .cuda_cells import device_grid
 from .cuda_memory import COUNTERS, VEC, count_bytes, dev_array, host_wait, layout, split
 
 
@@ -125,18 +126,8 @@ def device_images(be, state, periodic):
     n_fluid = int(hm[1])
     # the grid over the images' bounding box, as sphgraph.cells.build_grid
     g_axes = np.asarray(state.axes, np.int64)
-    glo, ghi = np.zeros(3), np.zeros(3)
-    for q in range(3):
-        if g_axes[q] >= 0:
-            glo[q], ghi[q] = hm[2 + g_axes[q]], hm[5 + g_axes[q]]
-    dims = grid_dims(glo, ghi, c.cell_size, g_axes)
+    glo, ghi, dims, o_ax, n_ax, s_ax = device_grid(hm[2:5], hm[5:8], c.cell_size, g_axes)
     ncells = int(dims.prod())
-    stride = np.array([1, dims[0], dims[0] * dims[1]], np.int64)
-    o_ax, n_ax, s_ax = np.zeros(3), np.ones(3, np.int64), np.zeros(3, np.int64)
-    for q in range(3):
-        p = g_axes[q]
-        if p >= 0:
-            o_ax[p], n_ax[p], s_ax[p] = glo[q], dims[q], stride[q]
     # the halo's arrays in a pooled buffer (prepare_halo's: it lives while tasks read it)
     out = DeviceImages(m, n_fluid, None, None, dv.ref, dim)
     names = ["r" + ax for ax in VEC[:dim]] + ["v" + ax for ax in VEC[:dim]] + ["rho", "press"]
