@@ -73,7 +73,7 @@ def check(r):
 def test_simulator_device_images_are_the_host_images():
     """mDBC in float64 (images made twice a stage), packed to tight bounds: the first stage
     packs again. float32 runs in the gpu variant."""
-    r = compare_in_subprocess(__file__, "compare(5, 'mdbc', 'float64', tight=True)", sim=True, timeout=900)
+    r = compare_in_subprocess(__file__, "compare(3, 'mdbc', 'float64', tight=True)", sim=True, timeout=900)
     assert r["repacked"] > 0, r
     check(r)
 
