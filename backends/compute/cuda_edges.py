@@ -141,8 +141,8 @@ def k_edge_bounds(pos, kind, m, count, dim, axis, thr, below, meta):
 
 def k_edge_keys(pos, m, dim, axis, thr, below, ox, oy, oz, inv_size, nx, ny, nz, sx, sy, sz, ncells,
                 keys, counts):
-    """Cell key of each received edge row (as sphgraph.cells.cell_keys) and
-    a histogram; a row outside the edge's cut gets key ncells, binned after every cell."""
+    """Cell key of each packed row (as sphgraph.cells.cell_keys) and a histogram; a row
+    outside the cut gets key ncells, binned after every cell."""
     i = cuda.grid(1)
     if i >= m:
         return
@@ -165,9 +165,9 @@ def k_edge_keys(pos, m, dim, axis, thr, below, ox, oy, oz, inv_size, nx, ny, nz,
 
 def k_edge_gather(pos, v4, kind, perm, n, dim, ref0, ref1, ref2, prm, rx, ry, rz, vx, vy, vz, rho, press,
                   okind):
-    """The halo's arrays in cell order from the received edge records: positions relative
-    to the rank's reference point (float64 difference, then the run's type, as the host
-    path), velocity, density, its pressure, kind."""
+    """The halo's arrays in cell order from the packed records: positions relative to the
+    rank's reference point (float64 difference, then the run's type, as the host path's
+    prepare_halo), velocity, density, its pressure, kind."""
     i = cuda.grid(1)
     if i >= n:
         return
