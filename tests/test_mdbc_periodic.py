@@ -150,11 +150,17 @@ def test_images_in_the_edge_need_their_values(monkeypatch):
 
 
 def compare_ranks(steps=3) -> dict:
-    """The plate channel on numba-cuda, 2 mock ranks, against numba-cpu on one rank."""
+    """The plate channel on numba-cuda, 2 mock ranks, against numba-cpu on one rank; "device":
+    how many times the ranks made their images on the device (cuda_images)."""
     import cudasim_helpers as H
+    from sphgraph.backends.compute import cuda_images
+    made = []
+    make = cuda_images.device_images
+    cuda_images.device_images = lambda *a: made.append(1) or make(*a)
     sc = plate_scene()
     cpu = H.run(sc, "numba-cpu", steps)
-    return H.diff(sc, cpu, H.run(sc, "numba-cuda", steps, 2, "staged", schedule="bulk-synchronous"))
+    out = H.diff(sc, cpu, H.run(sc, "numba-cuda", steps, 2, "staged", schedule="bulk-synchronous"))
+    return out | {"device": len(made)}
 
 
 def test_simulator_mock_ranks_match_cpu():
@@ -162,6 +168,7 @@ def test_simulator_mock_ranks_match_cpu():
     r = compare_in_subprocess(__file__, "compare_ranks(3)", sim=True, timeout=900)
     check_equal(r)
     assert r["vel"] < 1e-10, r
+    assert r["device"] > 0, r      # the images along x made on the device on both ranks
 
 
 def drift_scene(boundary="mdbc-noslip"):

@@ -93,11 +93,13 @@ class CudaRows:
         return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
 
     def periodic_images(self, state, periodic):
-        """ComputeBackend.periodic_images made and binned on the device (cuda_images) when
-        the device rows are current and the scene has one image axis; else the host path."""
+        """ComputeBackend.periodic_images made and binned on the device (cuda_images) when the
+        scene has one image axis; else the host path. The device rows are the truth here
+        whether or not the host copy is current (sync_host copies them down, a changed host
+        copy is uploaded), so a current host copy is no reason for the host path."""
         from .cuda_images import device_images
         dv = state.extra.get("dev")
-        if dv is not None and dv.host_stale and dv.n:
+        if dv is not None and dv.n:
             out = device_images(self, state, periodic)
             if out is not None:
                 return out
