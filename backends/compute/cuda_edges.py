@@ -5,11 +5,23 @@ halo's cells on the device (cuda_images).
 import math
 
 import numpy as np
-from numba import cuda
+from numba import cuda, njit
 
 from sphgraph.physics.eos import tait
 
 KERNELS = ("k_pack_edge", "k_pack_images", "k_edge_init", "k_edge_bounds", "k_edge_keys", "k_edge_gather")
+
+
+@njit(inline="always")
+def _copy_record(vel4, kind, i, o4, okind, j):
+    """Row i's vel4 record (vx, vy, vz, rho) and kind into packed slot j."""
+    s = 4 * i
+    d = 4 * j
+    o4[d] = vel4[s]
+    o4[d + 1] = vel4[s + 1]
+    o4[d + 2] = vel4[s + 2]
+    o4[d + 3] = vel4[s + 3]
+    okind[j] = kind[i]
 
 
 def k_pack_edge(px, py, pz, vel4, kind, a0, m0, a1, m, dim, o64, o4, okind):
@@ -24,13 +36,7 @@ def k_pack_edge(px, py, pz, vel4, kind, a0, m0, a1, m, dim, o64, o4, okind):
     o64[b + 1] = py[i]
     if dim == 3:
         o64[b + 2] = pz[i]
-    s = 4 * i
-    d = 4 * j
-    o4[d] = vel4[s]
-    o4[d + 1] = vel4[s + 1]
-    o4[d + 2] = vel4[s + 2]
-    o4[d + 3] = vel4[s + 3]
-    okind[j] = kind[i]
+    _copy_record(vel4, kind, i, o4, okind, j)
 
 
 def k_pack_images(keep, pos, n, cap, dim, px, py, pz, vel4, kind, axis, t, period, o64, o4, okind):
@@ -52,13 +58,7 @@ def k_pack_images(keep, pos, n, cap, dim, px, py, pz, vel4, kind, axis, t, perio
     o64[b + 1] = py[i] + s if axis == 1 else py[i]
     if dim == 3:
         o64[b + 2] = pz[i] + s if axis == 2 else pz[i]
-    r = 4 * i
-    d = 4 * j
-    o4[d] = vel4[r]
-    o4[d + 1] = vel4[r + 1]
-    o4[d + 2] = vel4[r + 2]
-    o4[d + 3] = vel4[r + 3]
-    okind[j] = kind[i]
+    _copy_record(vel4, kind, i, o4, okind, j)
 
 
 def k_edge_init(head, meta):

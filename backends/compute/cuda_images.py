@@ -74,7 +74,7 @@ def device_images(be, state, periodic):
     if len(axes) != 1:
         return None
     a = axes[0]
-    lo, hi, reach = float(periodic.lo[a]), float(periodic.hi[a]), float(periodic.reach)
+    lo, reach = float(periodic.lo[a]), float(periodic.reach)
     period = float(periodic.period[a])
     if not period > 2.0 * reach:
         return None
@@ -83,13 +83,8 @@ def device_images(be, state, periodic):
     s = be._s(state)
     n, dim, A = dv.n, dv.dim, dv.arrays
     c = state.consts
-    # the rows near a face, placed by the scan (cuda_rows' counter, as migration's)
-    keep = dv.dev_buf("images_keep", 4 * n).view(np.int32)
-    slot = dv.dev_buf("images_pos", 4 * n).view(np.int32)
-    cnt = be._zeroed_count(dv, k)
-    t, u, w = [0.0] * 3, [0.0] * 3, [0] * 3
-    t[a], u[a], w[a] = lo + reach, hi - reach, 1
-    k.k_near_faces[CK.blocks(n), CK.BLOCK](A["px"], A["py"], A["pz"], n, *t, *u, *w, keep, cnt)
+    # the rows near a face (cuda_rows._near_faces, the host path's too), placed by the scan
+    keep, slot, cnt = be._near_faces(state, dv, k, periodic.lo, periodic.hi, reach, axes)
     tmp = dv.images_scan        # block sums of its own (the sort's may be live)
     be._scan(dv, k, keep, slot, n, tmp=tmp)
     # packed up to a bound on their count (the last stage's and a margin): the count comes to

@@ -76,21 +76,29 @@ class CudaRows:
         if dv is None or not dv.host_stale or not dv.n:
             return super().periodic_rows(state, lo, hi, reach, axes)
         k = self._k(state)
+        keep, pos, cnt = self._near_faces(state, dv, k, lo, hi, reach, axes)
+        m = self._read_count(state, dv, cnt, "images")
+        if m == 0:
+            r = state.particles.take(np.zeros(0, np.int64))
+        else:
+            self._scan(dv, k, keep, pos, dv.n, tmp=dv.images_scan)
+            r = self._packed_rows(state, dv, k, keep, pos, m, "images")
+        return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
+
+    def _near_faces(self, state, dv, k, lo, hi, reach, axes):
+        """(keep, pos, count) of the device rows within `reach` of a face along `axes`
+        (k_near_faces: keep 0 and counted there, else 1; pos for the scan of keep), for the
+        periodic images, host path (periodic_rows) or device (cuda_images). Not the pos4
+        scratch that migration uses: these are live mid-stage."""
         n, A = dv.n, dv.arrays
-        keep = dv.dev_buf("images_keep", 4 * n).view(np.int32)   # not the pos4 scratch: live mid-stage
+        keep = dv.dev_buf("images_keep", 4 * n).view(np.int32)
         pos = dv.dev_buf("images_pos", 4 * n).view(np.int32)
         cnt = self._zeroed_count(dv, k)
         t, u, w = [0.0] * 3, [0.0] * 3, [0] * 3
         for a in axes:
             t[a], u[a], w[a] = float(lo[a] + reach), float(hi[a] - reach), 1
         k.k_near_faces[CK.blocks(n), CK.BLOCK](A["px"], A["py"], A["pz"], n, *t, *u, *w, keep, cnt)
-        m = self._read_count(state, dv, cnt, "images")
-        if m == 0:
-            r = state.particles.take(np.zeros(0, np.int64))
-        else:
-            self._scan(dv, k, keep, pos, n)
-            r = self._packed_rows(state, dv, k, keep, pos, m, "images")
-        return Halo(pos=r.pos, vel=r.vel, rho=r.rho, kind=r.kind)
+        return keep, pos, cnt
 
     def periodic_images(self, state, periodic):
         """ComputeBackend.periodic_images made and binned on the device (cuda_images) when the
