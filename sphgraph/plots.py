@@ -508,20 +508,32 @@ def plot_efficiency(source, path=None) -> str:
 def plot_validation(result, title: str, path) -> str:
     """Simulation against reference of one validation case (`sphgraph validate`)."""
     path = _check_path(path, "validation")
-    fig = _new_figure((7.5, 5.0))
-    ax = fig.subplots()
-    for i, (label, (x, y, style)) in enumerate(result.series.items()):
+    # a series (x, y, style, panel) goes to the axes of its panel (one a gauge, say), the
+    # others to one axes; within a panel the run and its data share a colour
+    panels = list(dict.fromkeys(v[3] if len(v) > 3 else None for v in result.series.values()))
+    ncol = 1 if len(panels) == 1 else 2
+    nrow = (len(panels) + ncol - 1) // ncol
+    fig = _new_figure((7.5 * (1 if ncol == 1 else 1.6), 5.0 * (1 if nrow == 1 else 0.75 * nrow)))
+    axes = np.atleast_1d(fig.subplots(nrow, ncol, squeeze=False)).ravel()
+    for i, (label, v) in enumerate(result.series.items()):
+        x, y, style = v[:3]
+        k = panels.index(v[3] if len(v) > 3 else None)
+        ax = axes[k]
+        color = f"C{i}" if len(panels) == 1 else f"C{k}"
         if style == "o":
-            ax.plot(x, y, "o", ms=5, mfc="none", label=label, color=f"C{i}")
+            ax.plot(x, y, "o", ms=5, mfc="none", label=label, color=color)
         elif style == ".":
-            ax.plot(x, y, ".", ms=3, label=label, color=f"C{i}")
+            ax.plot(x, y, ".", ms=2, label=label, color=color, alpha=0.5 if len(panels) > 1 else 1.0)
         else:
-            ax.plot(x, y, style, lw=1.4, label=label, color=f"C{i}")
+            ax.plot(x, y, style, lw=1.4, label=label, color=color)
     worst = [c for c in result.checks if not c[4]]
-    ax.set_title(f"{title}\ndp = {result.dp:g}: {'PASS' if result.ok else 'FAIL ' + ', '.join(c[0] for c in worst)}",
+    fig.suptitle(f"{title}\ndp = {result.dp:g}: {'PASS' if result.ok else 'FAIL ' + ', '.join(c[0] for c in worst)}",
                  fontsize=9)
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
+    for ax in axes[:len(panels)]:
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes[len(panels):]:
+        ax.set_visible(False)
     return _save(fig, path)
 
 

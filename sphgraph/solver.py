@@ -177,8 +177,13 @@ class Simulation:
         if self.rebalance and self.balance_cfg.policy == "memory":
             self._attach_capacity(scene)
         t0 = self._phase("state", t0)
-        self.lo = np.asarray(scene.domain_min, float)
-        self.hi = np.asarray(scene.domain_max, float)
+        # the end-of-step check's bounds, as loose as the scene's extent check (geometry.TOL dp):
+        # a wall layer drawn on the domain's face (3.22 + 3 x 0.04 = 3.32 = domain.max in
+        # examples/spheric2.toml at dp 0.04) lies 4e-16 beyond it after rounding, and was
+        # excluded at the first step
+        from .geometry import TOL
+        self.lo = np.asarray(scene.domain_min, float) - TOL * scene.dp
+        self.hi = np.asarray(scene.domain_max, float) + TOL * scene.dp
         self.step_count = 0
         self.time = 0.0
         self.features.attach(self, particles)   # its task kinds for the split axis now known
