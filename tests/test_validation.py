@@ -419,3 +419,44 @@ def test_case_at_the_experiments_size_scales_every_length():
         assert abs(m[f"front_mean_rel_err_{k}"] - big[f"front_mean_rel_err_{k}"]) < 1e-5
     with pytest.raises(ValueError, match="buchner"):
         at_size(load_case("buchner"), 0.1)
+
+
+def test_marin_gauges_fill_in_the_order_of_their_distance_from_the_water():
+    """The SPHERIC 2 data's columns are placed by the case at x = 1.488, 0.992 and 0.496 m (and
+    2.638 in the reservoir): the dry gauges must then wet in that order, the reservoir gauge
+    must start at the initial depth, and every gauge's data column must be a distinct one."""
+    c = load_case("spheric2")
+    data, _ = load(c.reference["dataset"])
+    gauges = c.params["gauges"]
+    assert sorted(int(g[3]) for g in gauges) == [1, 2, 3, 4]
+    face = 1.992                                     # the water column's face at t = 0
+    dry = [g for g in gauges if float(g[1]) < face]
+    wet = [g for g in gauges if float(g[1]) > face]
+    arrival = {g[0]: data[np.nonzero(data[:, int(g[3])] > c.params["arrival_h"])[0][0], 0] for g in dry}
+    by_distance = sorted(dry, key=lambda g: face - float(g[1]))
+    assert [arrival[g[0]] for g in by_distance] == sorted(arrival.values()), arrival
+    assert len(wet) == 1 and abs(data[0, int(wet[0][3])] - c.params["h0"]) < 0.01
+
+
+def test_spheric2_heights_coarse():
+    """3D, dp = 0.1 to t = 0.45 s (seconds): the gauge behind the box stays dry as the data
+    do, the reservoir gauge reads the initial depth within one dp, and the gauge
+    nearest the column sees the front (late at this dp: the kernel sum of a thin front stays
+    below the height's threshold; 0.16 s at dp 0.1)."""
+    r = run_case("spheric2", dp=0.1, plot=False, params={"t_end": 0.45})
+    assert r.metrics["height_rms_err_m_H1"] < 0.002, r.report()
+    t, h, *_ = r.series["sphgraph H4"]
+    assert abs(h[0] - 0.55) < 0.1 and t[0] == 0.0
+    assert 0.0 < r.metrics["arrival_err_s_H3"] < 0.25, r.report()
+
+
+def test_walls_drawn_on_the_domain_face_stay_in_the_run():
+    """examples/spheric2.toml at dp 0.04 draws its outer tank layer on domain.max (3.22 + 3 dp =
+    3.32): the end-of-step check must not exclude it for the rounding of its position."""
+    from sphgraph.solver import Simulation
+    sc = Scene.from_toml("examples/spheric2.toml").with_overrides(dp=0.04, end_time=0.001)
+    sim = Simulation(sc, backend="numba-cpu")
+    hi = np.asarray(sc.domain_max)
+    assert (sim.contexts[0].state.particles.pos > hi).any()     # rounded beyond the face
+    sim.step()
+    assert sim.features.excluded == [] and sim.n_total == 41224
