@@ -25,7 +25,11 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
         "mdbc": ({"boundary": "mdbc"}, {}),                   # mDBC walls (the case's 3 layers)
         # the low-dissipation pressure and walls that met Buchner's targets (docs/validation.md)
         "zhang-mdbc": ({"boundary": "mdbc"}, {"riemann": "zhang2017", "riemann_eta": 0.3}),
-        "zhang": ({}, {"riemann": "zhang2017", "riemann_eta": 0.3})}
+        "zhang": ({}, {"riemann": "zhang2017", "riemann_eta": 0.3}),
+        # mDBC walls as deep as the kernel's support (h = 2 dp here: 4 layers; docs/validation.md,
+        # "Wall penetration map": three layers of mDBC let a fast jet through)
+        "mdbc4": ({"boundary": "mdbc", "layers": 4}, {}),
+        "zhang-mdbc4": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3})}
 
 
 def plot(rows, path, case) -> None:
