@@ -182,6 +182,15 @@ def _arrays(sim):
     return sim.frame_arrays()
 
 
+def _run_sampled(sim, sampler, end_time: float) -> None:
+    """Step `sim` to `end_time`, sampling at t = 0 and whenever the sampler is due."""
+    sampler.sample(sim)
+    while sim.time < end_time - 1e-12:
+        sim.step()
+        if sampler.due(sim.time):
+            sampler.sample(sim)
+
+
 def rel_errors(sim_T, sim_Z, ref_T, ref_Z):
     """Relative errors (sim - ref)/ref at the reference times (sim interpolated)."""
     z = np.interp(ref_T, sim_T, sim_Z)
@@ -371,11 +380,7 @@ def run_body_force(case, dp, prm, backend, precision, overrides):
             "bodies": [("body", lo, hi)]}
     sampler = ProbeSampler(scene, spec)
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
-    sampler.sample(sim)
-    while sim.time < scene.end_time - 1e-12:
-        sim.step()
-        if sampler.due(sim.time):
-            sampler.sample(sim)
+    _run_sampled(sim, sampler, scene.end_time)
     t, F = sampler.series("body", "force")
     comp = int(prm.get("component", 0))
     f = F[:, comp]
@@ -428,17 +433,13 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
             "heights": [(str(g[0]), np.array(g[1:3], float)) for g in gauges]}
     sampler = ProbeSampler(scene, spec)
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
-    sampler.sample(sim)
-    while sim.time < scene.end_time - 1e-12:
-        sim.step()
-        if sampler.due(sim.time):
-            sampler.sample(sim)
-    data, header = load(case.reference["dataset"])
+    _run_sampled(sim, sampler, scene.end_time)
+    data, _ = load(case.reference["dataset"])
     w = data[data[:, 0] <= sim.time + 1e-12]
     h0 = float(prm["h0"])
     thr = float(prm.get("arrival_h", 0.02))
     metrics, series, sq = {}, {}, []
-    for i, g in enumerate(gauges):
+    for g in gauges:
         name, col = str(g[0]), int(g[3])
         t, z = sampler.series(name, "height")
         # a column with no fluid over it reads the domain's floor (sphgraph.probes): the tank
