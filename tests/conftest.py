@@ -1,6 +1,13 @@
 import os
 
-import pytest
+# Each pytest-xdist worker runs its numba kernels on one thread: the README's `-n 2` already
+# puts one worker on each of CI's two cores, and a worker's second numba thread only contends
+# with the other worker. Set before numba is imported (numba reads it once); a value already
+# in the environment is kept.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
 
 EXAMPLES = os.path.join(os.path.dirname(__file__), "..", "examples")
 
