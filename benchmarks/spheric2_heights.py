@@ -15,10 +15,7 @@ failure and the sweep goes on.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
-import traceback
 
 # run: (params over the case's, physics overrides)
 RUNS = {"dsph": ({}, {}),                                     # the case as shipped: DualSPHysics' set-up
@@ -68,31 +65,23 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--plot", default=None)
     a = ap.parse_args(argv)
-    from sphgraph.errors import NumericalError
     from sphgraph.validation.cases import load_case, run_case
+    from sweep_rows import attempt, record
     case = load_case("spheric2")
     rows = []
     for key in a.runs.split(","):
         params, overrides = RUNS[key]
         params = dict(params, **({"t_end": a.t_end} if a.t_end else {}))
-        t0 = time.perf_counter()
         row = {"run": key, "case": case.name, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default",
                "params": params, "overrides": overrides}
-        try:
+
+        def one():
             r = run_case(case, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
                          overrides=overrides, plot=False)
-            row.update(ok=True, metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
-                       series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
-                               for k, v in r.series.items() if k.startswith("sphgraph ")})
-        except NumericalError as e:
-            row.update(ok=False, failure=str(e), wall_s=time.perf_counter() - t0)
-        except Exception:   # noqa: BLE001 - recorded, the next run goes on
-            row.update(ok=False, failure=traceback.format_exc(limit=3), wall_s=time.perf_counter() - t0)
-        rows.append(row)
-        print(json.dumps({k: v for k, v in row.items() if k != "series"}), flush=True)
-        if a.json:
-            with open(a.json, "w") as f:
-                json.dump(rows, f)
+            return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
+                        series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
+                                for k, v in r.series.items() if k.startswith("sphgraph ")})
+        record(rows, attempt(row, one), a.json)
         if a.plot:
             plot(rows, a.plot, case)
     return 0 if all(r["ok"] for r in rows) else 1

@@ -15,10 +15,7 @@ comparison plot.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
-import traceback
 
 # case, params over the case's, physics overrides: the dry run takes the wet example's
 # DuFort-Frankel diffusion step (with DualSPHysics' leapfrog the dry run stops at dp 0.0085:
@@ -51,31 +48,23 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None)
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
-    from sphgraph.errors import NumericalError
     from sphgraph.validation.cases import load_case, run_case
     from sphgraph.validation.gate import with_gate
+    from sweep_rows import attempt, record
     rows = []
     for key in a.runs.split(","):
         name, params, overrides, *gate = CASES[key]
         case = with_gate(load_case(name), a.dp, GATE_FACE_X, GATE_H0, gate[0]) if gate else name
-        t0 = time.perf_counter()
         row = {"run": key, "case": name, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default"}
-        try:
+
+        def one():
             r = run_case(case, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
                          overrides=overrides, out=a.out, plot=a.out is not None)
-            row.update(ok=True, metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
-                       checks=[list(c) for c in r.checks],
-                       series={k: [list(map(float, v[0])), list(map(float, v[1]))] for k, v in r.series.items()
-                               if "running mean" in k})
-        except NumericalError as e:
-            row.update(ok=False, failure=str(e), wall_s=time.perf_counter() - t0)
-        except Exception:   # noqa: BLE001 - recorded, the next run goes on
-            row.update(ok=False, failure=traceback.format_exc(limit=3), wall_s=time.perf_counter() - t0)
-        rows.append(row)
-        print(json.dumps({k: v for k, v in row.items() if k != "series"}), flush=True)
-        if a.json:
-            with open(a.json, "w") as f:
-                json.dump(rows, f)
+            return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
+                        checks=[list(c) for c in r.checks],
+                        series={k: [list(map(float, v[0])), list(map(float, v[1]))] for k, v in r.series.items()
+                                if "running mean" in k})
+        record(rows, attempt(row, one), a.json)
     return 0 if all(r["ok"] for r in rows) else 1
 
 
