@@ -276,13 +276,16 @@ def stability_map(cfls, coefsounds, steps=300, dp=0.04, A=5.0) -> list[dict]:
 
 
 # wall models of the penetration map: label -> ([physics] boundary, layers)
-WALL_MODELS = {"dbc-1": ("dbc", 1), "dbc-3": ("dbc", 3), "mdbc-1": ("mdbc", 1), "mdbc-3": ("mdbc", 3)}
+# (mdbc-4: the kernel's support at h = 2 dp, benchmarks/riemann_wall_jet.py)
+WALL_MODELS = {"dbc-1": ("dbc", 1), "dbc-3": ("dbc", 3), "mdbc-1": ("mdbc", 1), "mdbc-3": ("mdbc", 3),
+               "mdbc-4": ("mdbc", 4)}
 
 
-def penetration_map(speeds, models=tuple(WALL_MODELS), travel=0.3, dp=0.02, max_steps=20000,
-                    warmup=10) -> list[dict]:
+def penetration_map(speeds, models=("dbc-1", "dbc-3", "mdbc-1", "mdbc-3"), travel=0.3, dp=0.02, max_steps=20000,
+                    warmup=10, physics=None) -> list[dict]:
     """A slab hitting the floor (`jet_scene`) at each impact speed [m/s], for each wall model of
-    `WALL_MODELS`: one cell per (speed, model).
+    `WALL_MODELS`: one cell per (speed, model); `physics`, scene physics keys over the jet's
+    (e.g. the integrator and the Riemann term).
 
     Each run lasts until the slab, left alone, would have moved `travel` metres (t = travel /
     speed; 0.3 m is 1.5 slab heights: the impact is over and the water spread on the floor), at
@@ -308,7 +311,8 @@ def penetration_map(speeds, models=tuple(WALL_MODELS), travel=0.3, dp=0.02, max_
             raise InputError(f"--speeds: expected impact speeds > 0 m/s, got {speed:g}")
         for model in models:
             boundary, layers = WALL_MODELS[model]
-            sim = Simulation(jet_scene(dp=dp, layers=layers, boundary=boundary), invariants=False)
+            scene = jet_scene(dp=dp, layers=layers, boundary=boundary)
+            sim = Simulation(scene.with_overrides(**physics) if physics else scene, invariants=False)
             set_jet_velocity(sim, speed)
             wall = (1, outer_wall(sim), -1)
             through, first, error, times = 0, None, "", []
