@@ -46,7 +46,8 @@ P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B = 20, 21, 22, 23, 24  # series of (1+y)
 P_INV_H, P_BWH, P_YMAX = 25, 26, 27
 P_RHO0C0, P_RIEMANN_ETA = 28, 29   # rho0 c0 and the limiter's factor (riemann_pair)  # P_YMAX: the largest |y| of the series (fluid_pair)
 P_DDT_KCM = 30                   # delta 2h m_f c0: the Fourtakas term's constant (fluid_pair)
-P_WALL_NOSLIP, P_COUNT = 31, 32  # 1: boundary rows carry mDBC's no-slip velocity, for the viscous terms only (fluid_pair)
+P_WALL_NOSLIP = 31                # 1: boundary rows carry mDBC's no-slip velocity, for the viscous terms only (fluid_pair)
+P_WALL_MDBC, P_COUNT = 32, 33    # 1: boundary rows hold mDBC's ghost state (riemann_pair cancels the U* jump next to them)
 # opt indices
 O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_RIEMANN, O_COUNT = range(7)
 # opt values
@@ -163,6 +164,7 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     # kernel's code around it (a call, an inlined helper) moves, and with it the last bits
     prm[P_DDT_KCM] = (prm[P_DDT_KH] * mass) * c0
     prm[P_WALL_NOSLIP] = 1.0 if cfg.boundary == "mdbc-noslip" else 0.0
+    prm[P_WALL_MDBC] = 0.0 if cfg.boundary == "dbc" else 1.0
     opt = np.zeros(O_COUNT, np.int64)
     opt[O_DIM] = dim
     opt[O_KERNEL] = KERNELS.index(cfg.kernel)

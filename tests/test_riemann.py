@@ -10,11 +10,11 @@ from sphgraph import InputError, Scene, Simulation
 from sphgraph.config import K_WENDLAND, P_BW, P_C0, P_RHO0C0, P_RIEMANN_ETA
 
 
-def still(riemann="zhang2017", integrator="symplectic", jitter=0.0):
+def still(riemann="zhang2017", integrator="symplectic", jitter=0.0, boundary="dbc"):
     return Scene.from_dict({
         "format": 1, "dim": 2, "dp": 0.04, "end_time": 1.0,
         "domain": {"min": [-0.2, -0.2], "max": [1.8, 0.8], "origin": [0.0, 0.0], "exclude_outside": False},
-        "physics": {"riemann": riemann, "integrator": integrator},
+        "physics": {"riemann": riemann, "integrator": integrator, "boundary": boundary},
         "initial": {"hydrostatic": True, "jitter": jitter},
         "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.6, 0.4]}],
         "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.6, 0.6], "layers": 3}]})
@@ -53,14 +53,18 @@ def test_pair_conserves_momentum_and_the_limiter_acts_in_compression_only():
         got = _pair(prm, ra, rb, va, vb, rho_a, rho_b, pa, pb)
         acc, ar = expected(va, vb, beta)
         np.testing.assert_allclose(got[:2], acc, rtol=1e-12, err_msg=name)
-        np.testing.assert_allclose(got[3], ar, rtol=1e-12, err_msg=name)
+        np.testing.assert_allclose(got[3] + got[4], ar, rtol=1e-12, err_msg=name)   # ar + the U* jump
+        assert got[5] == 0                                    # a fluid b cancels nothing
         # momentum: equal masses, so a_a = -a_b (P* is the same from either side)
         back = _pair(prm, rb, ra, vb, va, rho_b, rho_a, pb, pa)
         np.testing.assert_allclose(back[:2], -got[:2], rtol=1e-12, err_msg=name)
 
 
-def test_kernel_against_a_direct_sum():
-    sim = Simulation(still(jitter=0.1), invariants=False)
+@pytest.mark.parametrize("boundary", ["dbc", "mdbc"])
+def test_kernel_against_a_direct_sum(boundary):
+    """The part's sums: continuity (ar) and the U* jump (ddt) apart; with mDBC walls a row with
+    a boundary neighbour is marked to cancel its jump, and the reduction drops it there."""
+    sim = Simulation(still(jitter=0.1, boundary=boundary), invariants=False)
     for _ in range(3):
         sim.step()
     st = sim.contexts[0].state
@@ -89,14 +93,27 @@ def test_kernel_against_a_direct_sum():
     coef = -m * p2 / (p.rho[:, None] * p.rho[None, :]) * F
     acc = (coef[:, :, None] * d).sum(1)
     fl = p.kind == 0
-    jump = r * (P[:, None] - P[None, :]) / prm[P_RHO0C0] * fl[None, :]   # none towards a DBC wall
-    ar = (m * p.rho[:, None] * F * (dot + jump) / p.rho[None, :]).sum(1)
+    jump = r * (P[:, None] - P[None, :]) / prm[P_RHO0C0] * fl[None, :]   # none towards a wall
+    ar = (m * p.rho[:, None] * F * dot / p.rho[None, :]).sum(1)
+    ddt = (m * p.rho[:, None] * F * jump / p.rho[None, :]).sum(1)
     bound = ~fl
     ar_b = (m * p.rho[:, None] * F * dot / p.rho[None, :] * fl[None, :]).sum(1)   # DBC rows: fluid continuity
     np.testing.assert_allclose(buf.ace[fl], acc[fl], rtol=1e-9, atol=1e-9 * np.abs(acc[fl]).max())
     np.testing.assert_allclose(buf.ar[fl], ar[fl], rtol=1e-9, atol=1e-9 * np.abs(ar[fl]).max())
+    np.testing.assert_allclose(buf.ddt[fl], ddt[fl], rtol=1e-9, atol=1e-9 * np.abs(ddt[fl]).max())
     np.testing.assert_allclose(buf.ar[bound], ar_b[bound], rtol=1e-9, atol=1e-9 * np.abs(ar_b).max())
-    assert not buf.ddt.any() and not buf.cancel.any()
+    walled = fl & (near & bound[None, :]).any(1)
+    assert walled.any() and (fl & ~walled).any()
+    if boundary == "dbc":
+        assert not buf.cancel.any()
+        cut = np.zeros_like(walled)
+    else:                                    # an mDBC wall in reach cancels the row's jump
+        np.testing.assert_array_equal(buf.cancel[fl] != 0, walled[fl])
+        cut = walled
+    st.reduced_stage = None                  # reduce this evaluation, not the last step's
+    c.reduce_forces(st, 0)
+    want = ar + np.where(cut, 0.0, ddt)
+    np.testing.assert_allclose(st.ar[fl], want[fl], rtol=1e-9, atol=1e-9 * np.abs(want[fl]).max())
 
 
 def test_still_water_stays_at_rest():

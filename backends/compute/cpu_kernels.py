@@ -113,9 +113,9 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
            start, origin, inv_size, dims, axes, reach,
            prm, opt, ace, ar, ddt, cancel, visc):
     """`forces` with the Riemann-solver pressure term for fluid destinations
-    (`[physics] riemann`, `interact.riemann_pair`): the same traversal and outputs; no
-    diffusion term (ddt 0, nothing cancelled). A kernel of its own, so that `forces` (the
-    default path) is compiled as it was."""
+    (`[physics] riemann`, `interact.riemann_pair`): the same traversal and outputs, the U*
+    pressure jump as the diffusion term (ddt; an mDBC wall neighbour cancels it). A kernel of
+    its own, so that `forces` (the default path) is compiled as it was."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
     laminar = opt[O_LAMINAR] != 0
@@ -162,7 +162,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
                         dvy = vya - svel[j, 1]
                         dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
                         if a_fluid:
-                            fx, fy, fz, fr, fv = riemann_pair(
+                            fx, fy, fz, fr, fd, fc, fv = riemann_pair(
                                 drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
                                 svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
                                 mb if b_bound else mf, b_bound, prm, kernel, laminar)
@@ -170,6 +170,8 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
                             ayy += fy
                             azz += fz
                             arr += fr
+                            dd += fd
+                            cc |= fc
                         elif not b_bound:
                             fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
                                                 mf, prm, kernel)

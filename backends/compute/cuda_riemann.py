@@ -4,7 +4,8 @@
 No kernel is written here: the force kernels of cuda_forces (the rank's own rows, k_forces
 for host-binned halos) and of cuda_halo_kernels (ipc halos) are copied (cuda_variants.with_globals)
 with their fluid pair function replaced by `riemann_fluid_pair` -- `riemann_pair` (the pair maths numba-cpu
-calls) in `fluid_pair`'s signature, with no diffusion term and nothing cancelled -- so the
+calls, which returns `fluid_pair`'s tuple: the U* jump as the diffusion term, cancelled next to
+mDBC walls) in `fluid_pair`'s signature -- so the
 neighbour loops, sums and stores are those of the default path, which is compiled as it was.
 Boundary rows keep `bound_pair` (DBC continuity), as on the CPU.
 """
@@ -28,16 +29,14 @@ def enabled(state) -> bool:
 @njit(inline="always")
 def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b,
                        mass_b, b_bound, prm, kernel, ddt_kind, laminar):
-    """`riemann_pair` as `fluid_pair` returns: (ax, ay, az, ar, ddt, cancel, visc) with no
-    diffusion term (ddt 0) and no cancel (the Riemann term carries its own dissipation). The
-    row itself adds nothing: k_forces_fv's loop has no r^2 < 1e-18 cut (every term of
-    fluid_pair is an exact zero there), and riemann_pair divides by r."""
+    """`riemann_pair` in `fluid_pair`'s signature (ddt_kind unused: the pair's diffusion is
+    the U* jump). The row itself adds nothing: k_forces_fv's loop has no r^2 < 1e-18 cut
+    (every term of fluid_pair is an exact zero there), and riemann_pair divides by r."""
     if r2 < 1e-18:
         z = 0.0 * rho_a
         return z, z, z, z, z, 0, z
-    ax, ay, az, ar, visc = riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b,
-                                        p_a, p_b, mass_b, b_bound, prm, kernel, laminar)
-    return ax, ay, az, ar, 0.0 * ar, 0, visc
+    return riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b,
+                        p_a, p_b, mass_b, b_bound, prm, kernel, laminar)
 
 
 # the fluid candidate loop of k_forces_fv / k_halo_fv with the Riemann pair, then the kernels
