@@ -67,6 +67,9 @@ VARIANTS = {   # in run order: the Riemann family first, DualSPHysics' reference
     "zhang-eta0.3-mdbc": (ZHANG + ("riemann_eta=0.3",), "mdbc",
                           "zhang2017, Symplectic, eta 0.3, mDBC walls (the weakest limiter raised the plateau, "
                           "mDBC walls the first peak: both together)"),
+    "zhang-eta0.3-mdbc-cancel": (ZHANG + ("riemann_eta=0.3", "riemann_wall=cancel"), "mdbc",
+                                 "the same, the walls cancelling the Riemann term's density dissipation of the "
+                                 "rows next to them (holds fast impacts on mDBC walls)"),
     "zhang-shift": (ZHANG + ("shifting=nobound", "shifting_tfs=1.5"), None,
                     "zhang2017, Symplectic, particle shifting (Lind et al.; nobound, free-surface threshold 1.5)"),
     "dsph-df": (("diffusion_time=dufort-frankel",), None,

@@ -26,7 +26,12 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
         # mDBC walls as deep as the kernel's support (h = 2 dp here: 4 layers; docs/validation.md,
         # "Wall penetration map": three layers of mDBC let a fast jet through)
         "mdbc4": ({"boundary": "mdbc", "layers": 4}, {}),
-        "zhang-mdbc4": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3})}
+        "zhang-mdbc4": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3}),
+        # the same with the walls cancelling the Riemann term's density dissipation next to them
+        "zhang-mdbc-cancel": ({"boundary": "mdbc"}, {"riemann": "zhang2017", "riemann_eta": 0.3,
+                                                     "riemann_wall": "cancel"}),
+        "zhang-mdbc4-cancel": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3,
+                                                                  "riemann_wall": "cancel"})}
 
 
 def plot(rows, path, case) -> None:

@@ -37,6 +37,7 @@ DIFFUSION_TIMES = ("leapfrog", "dufort-frankel")
 # (P_a + P_b) with artificial viscosity and density diffusion; "zhang2017" = the linearised
 # (acoustic) Riemann solution with the low-dissipation limiter of Zhang, Hu & Adams 2017
 RIEMANNS = ("none", "zhang2017")
+RIEMANN_WALLS = ("skip", "cancel")     # what a wall neighbour does to the U* jump (riemann_pair)
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
@@ -47,7 +48,7 @@ P_INV_H, P_BWH, P_YMAX = 25, 26, 27
 P_RHO0C0, P_RIEMANN_ETA = 28, 29   # rho0 c0 and the limiter's factor (riemann_pair)  # P_YMAX: the largest |y| of the series (fluid_pair)
 P_DDT_KCM = 30                   # delta 2h m_f c0: the Fourtakas term's constant (fluid_pair)
 P_WALL_NOSLIP = 31                # 1: boundary rows carry mDBC's no-slip velocity, for the viscous terms only (fluid_pair)
-P_WALL_MDBC, P_COUNT = 32, 33    # 1: boundary rows hold mDBC's ghost state (riemann_pair cancels the U* jump next to them)
+P_RIEMANN_CANCEL, P_COUNT = 32, 33  # 1: a boundary neighbour cancels the row's U* jump (riemann_pair)
 # opt indices
 O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_RIEMANN, O_COUNT = range(7)
 # opt values
@@ -84,6 +85,7 @@ class PhysicsConfig:
     diffusion_time: str = "leapfrog"    # Verlet's density-diffusion step (DIFFUSION_TIMES)
     riemann: str = "none"               # Riemann-solver pressure term of fluid pairs (RIEMANNS)
     riemann_eta: float = 3.0            # the limiter's factor (Zhang, Hu & Adams 2017: 3)
+    riemann_wall: str = "skip"          # a wall neighbour adds no U* jump, or cancels the row's (RIEMANN_WALLS)
 
     @classmethod
     def field_names(cls):
@@ -164,7 +166,7 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     # kernel's code around it (a call, an inlined helper) moves, and with it the last bits
     prm[P_DDT_KCM] = (prm[P_DDT_KH] * mass) * c0
     prm[P_WALL_NOSLIP] = 1.0 if cfg.boundary == "mdbc-noslip" else 0.0
-    prm[P_WALL_MDBC] = 0.0 if cfg.boundary == "dbc" else 1.0
+    prm[P_RIEMANN_CANCEL] = float(RIEMANN_WALLS.index(cfg.riemann_wall))
     opt = np.zeros(O_COUNT, np.int64)
     opt[O_DIM] = dim
     opt[O_KERNEL] = KERNELS.index(cfg.kernel)

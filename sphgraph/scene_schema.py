@@ -19,7 +19,7 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes
-from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS,
+from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS, RIEMANN_WALLS,
                      SHIFTINGS, PhysicsConfig)
 from .errors import InputError
 from .ranges import CHOICES, describe, expected, finite, in_range, is_real
@@ -48,7 +48,8 @@ _ENTRY_KEYS = {
 # physics options with a fixed set of values, and lower bounds of numeric ones
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
                  "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES,
-                 "diffusion_time": DIFFUSION_TIMES, "riemann": RIEMANNS}
+                 "diffusion_time": DIFFUSION_TIMES, "riemann": RIEMANNS,
+                 "riemann_wall": RIEMANN_WALLS}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
@@ -299,6 +300,9 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
         raise c.error("physics.riemann", '"none" with integrator = "verlet" (the Riemann term\'s pressure '
                       'jump is a diffusion of the density, which the Verlet leapfrog integrates unstably: '
                       'set integrator = "symplectic")', cfg.riemann)
+    if cfg.riemann_wall != "skip" and cfg.riemann == "none":
+        raise c.error("physics.riemann_wall", '"skip" with riemann = "none" (the option is what a wall does '
+                      'to the Riemann term\'s pressure jump; set riemann = "zhang2017")', cfg.riemann_wall)
     if cfg.diffusion_time != "leapfrog" and cfg.integrator != "verlet":
         raise c.error("physics.diffusion_time", '"leapfrog" with integrator = "symplectic" (the option '
                       'is how the Verlet step advances the diffusion term)', cfg.diffusion_time)

@@ -41,9 +41,16 @@ continuity   drho_a/dt += 2 rho_a m_b/rho_b (v_a - v*) . grad W
                         = m_b rho_a/rho_b F [v_ab . r_ab + r (P_a - P_b)/(rho0 c0)]
 momentum     dv_a/dt   += -m_b 2 P*/(rho_a rho_b) grad W
 The P* dissipation replaces the artificial viscosity and the U* pressure jump the density
-diffusion (neither is added for these pairs; a boundary b adds no pressure jump, as
-SPHinXsys' wall form has none, and with mDBC walls it cancels a's jump, as a DBC wall
-cancels the Molteni diffusion); the laminar term is kept.
+diffusion (neither is added for these pairs); the laminar term is kept.
+Riemann term next to walls (`[physics] riemann_wall`): "skip" (default), a boundary b adds no
+pressure jump (SPHinXsys' wall form adds only its hydrostatic part) while a's fluid neighbours
+still do; "cancel", a boundary b in reach cancels a's jump, as a DBC wall cancels the Molteni
+diffusion. Next to a wall a's fluid neighbours lie on one side only, so during an impact the
+jump drains density from the rows at the wall towards the fluid behind them (a first-order
+truncation term); an mDBC wall reads that lowered density at its ghost and pushes back less.
+In a fast impact on mDBC walls that loop can let fluid through the wall, which "cancel" stops;
+but "cancel" leaves the rows at the wall without any density dissipation, and the wall pressure
+they give turns to acoustic noise (measured in docs/validation.md, "Riemann term next to walls").
 mDBC no-slip walls (`[physics] boundary = "mdbc-noslip"`, prm P_WALL_NOSLIP = 1): a boundary
 b's velocity is the mirrored tangential fluid velocity its ghost sees (physics.mdbc), which the
 viscous terms (artificial, laminar, the dt term) take; the continuity equation and the
@@ -63,7 +70,7 @@ import math
 from numba import njit
 
 from ..config import (P_HYD1, P_HYD2, P_HYD3, P_HYD4, P_RHO0_B, P_C0, P_ETA2, P_GAMMA, P_GX, P_GY, P_GZ, P_H, P_DDT_KH, P_NU,
-                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_DDT_KCM, P_VISC, P_VISC_BOUND, P_WALL_MDBC, P_WALL_NOSLIP, P_YMAX, D_NONE, D_MOLTENI,
+                      P_RHO0, P_RHO0C0, P_RIEMANN_ETA, P_DDT_KCM, P_VISC, P_VISC_BOUND, P_RIEMANN_CANCEL, P_WALL_NOSLIP, P_YMAX, D_NONE, D_MOLTENI,
                       D_FOURTAKAS_FULL)
 from .kernels import grad_factor
 
@@ -167,12 +174,10 @@ def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho
     docstring), in `fluid_pair`'s shape: (ax, ay, az, ar, ddt, cancel, visc), visc the ViscDt
     term / h. The continuity's U* pressure jump is the pair's `ddt` (summed apart and added
     unless a neighbour cancels it): it is a density diffusion. A boundary b adds none: its
-    pressure is the wall's reaction, not a fluid state; with DBC walls diffusing towards it
-    pumps the density up along every wall. With mDBC walls (prm P_WALL_MDBC) a boundary b
-    cancels a's jump altogether, as DualSPHysics' DBC cancels its diffusion: the jump from a's
-    fluid neighbours diffuses the density of the rows next to the wall, which is what the
-    wall's ghost reads back as its own state; at 20 m/s onto four mDBC layers that loop let
-    fluid through the wall (benchmarks/riemann_wall_jet.py, docs/validation.md)."""
+    pressure is the wall's reaction, not a fluid state (with DBC walls diffusing towards it
+    pumps the density up along every wall). With `riemann_wall = "cancel"` (prm
+    P_RIEMANN_CANCEL) a boundary b cancels a's jump altogether, as a DBC wall cancels the
+    Molteni diffusion (module docstring, "Riemann term next to walls")."""
     fac = grad_factor(r2, prm, kernel)
     inv_rho_b = 1.0 / rho_b
     inv_r2e = 1.0 / (r2 + prm[P_ETA2])
@@ -184,7 +189,7 @@ def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho
     mf = (mass_b * rho_a) * fac * inv_rho_b
     ar = mf * dot_c
     jump = 0.0 * ar if b_bound else mf * (r * (p_a - p_b) / rc)
-    cancel = 1 if (b_bound and prm[P_WALL_MDBC] != 0.0) else 0
+    cancel = 1 if (b_bound and prm[P_RIEMANN_CANCEL] != 0.0) else 0
     beta = min(prm[P_RIEMANN_ETA] * max(du, 0.0) / prm[P_C0], 1.0)
     p2 = p_a + p_b + rc * beta * du                  # 2 P*
     cf = p2 * (-mass_b * inv_rho_a) * inv_rho_b * fac
