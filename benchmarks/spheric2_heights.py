@@ -10,7 +10,9 @@ Each run is the validation case as `sphgraph validate spheric2` runs it (`run_ca
 time shift). One JSON line per run as it finishes (metrics, particles, steps, wall seconds,
 compile included); `--json` also holds each run's height series, `--plot` draws every run
 against the data, one panel a gauge. A run that fails numerically is recorded with its
-failure and the sweep goes on.
+failure and the sweep goes on. `--rescore FILE... --window T` runs nothing: it scores the stored
+series of earlier `--json` files over 0-T s (the case's metrics, `cases.height_metrics`), so that
+a run cut short at `--t-end` compares with full runs over the same window.
 """
 from __future__ import annotations
 
@@ -60,6 +62,28 @@ def plot(rows, path, case) -> None:
     fig.savefig(path, dpi=120)
 
 
+def rescore(case, paths, window) -> int:
+    """One JSON line a stored run that has its series: the case's metrics over 0-window s (a run
+    that stopped or was cut short at t_end is compared with the others over its own length)."""
+    import json
+    from sphgraph.validation import load
+    from sphgraph.validation.cases import height_metrics
+    data, _ = load(case.reference["dataset"])
+    for path in paths:
+        with open(path) as f:
+            for r in json.load(f):
+                if not r.get("series"):
+                    continue
+                last = min(t[-1] for t, _ in r["series"].values())
+                if window is not None and window > last + 1e-9:
+                    print(json.dumps({"file": path, "run": r["run"], "skipped": f"its series end at {last:.2f} s"}))
+                    continue
+                m = height_metrics(case.params, data, r["series"], last if window is None else window)
+                print(json.dumps({"file": path, "run": r["run"], "dp": r["dp"], "window_s": window or last,
+                                  "metrics": m}), flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--backend", default="numba-cpu")
@@ -69,10 +93,15 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", default="dsph,zhang-mdbc", help="comma list of " + ", ".join(RUNS))
     ap.add_argument("--json", default=None)
     ap.add_argument("--plot", default=None)
+    ap.add_argument("--rescore", nargs="+", default=None, metavar="JSON",
+                    help="no run: score the stored series of these --json files over 0-WINDOW s")
+    ap.add_argument("--window", type=float, default=None, help="s, with --rescore")
     a = ap.parse_args(argv)
     from sphgraph.validation.cases import load_case, run_case
     from sweep_rows import attempt, record
     case = load_case("spheric2")
+    if a.rescore:
+        return rescore(case, a.rescore, a.window)
     rows = []
     for key in a.runs.split(","):
         params, overrides = RUNS[key]

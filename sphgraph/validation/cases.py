@@ -422,6 +422,34 @@ def run_body_force(case, dp, prm, backend, precision, overrides):
     return metrics, series, {"steps": sim.step_count, "particles": sim.n_total}, notes
 
 
+def height_metrics(prm, data, heights, t_end):
+    """The water-height case's metrics from sampled heights ({gauge: (t, h)}, h above the floor)
+    against the data's columns at the data's times up to t_end, no time shift: RMS and mean error
+    a gauge, the arrival of each gauge dry at the start, and the RMS over all relative to h0.
+    Also scores stored series over a shorter window (benchmarks/spheric2_heights.py --rescore)."""
+    w = data[data[:, 0] <= t_end + 1e-12]
+    h0 = float(prm["h0"])
+    thr = float(prm.get("arrival_h", 0.02))
+    metrics, sq = {}, []
+    for g in prm["gauges"]:
+        name, col = str(g[0]), int(g[3])
+        t, h = (np.asarray(a, float) for a in heights[name])
+        hd = w[:, col]
+        e = np.interp(w[:, 0], t, h) - hd
+        metrics[f"height_rms_err_m_{name}"] = float(np.sqrt((e ** 2).mean()))
+        metrics[f"height_mean_err_m_{name}"] = float(e.mean())
+        sq.append(float((e ** 2).mean()))
+        if hd[0] < thr:        # a gauge dry at the start: the front's arrival there
+            ts = t[np.nonzero(h > thr)[0]]
+            td = w[np.nonzero(hd > thr)[0], 0]
+            if len(td):
+                metrics[f"arrival_s_{name}"] = float(ts[0]) if len(ts) else math.inf
+                metrics[f"arrival_data_s_{name}"] = float(td[0])
+                metrics[f"arrival_err_s_{name}"] = metrics[f"arrival_s_{name}"] - float(td[0])
+    metrics["height_rms_err_rel_h0_all"] = float(np.sqrt(np.mean(sq)) / h0)
+    return metrics
+
+
 def run_water_heights(case, dp, prm, backend, precision, overrides):
     """Water height gauges (`[probes] heights`) against measured height histories, one dataset
     column a gauge, compared at the data's times with no time shift."""
@@ -435,31 +463,18 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     _run_sampled(sim, sampler, scene.end_time)
     data, _ = load(case.reference["dataset"])
-    w = data[data[:, 0] <= sim.time + 1e-12]
     h0 = float(prm["h0"])
     thr = float(prm.get("arrival_h", 0.02))
-    metrics, series, sq = {}, {}, []
+    series = {}
     for g in gauges:
         name, col = str(g[0]), int(g[3])
         t, z = sampler.series(name, "height")
         # a column with no fluid over it reads the domain's floor (sphgraph.probes): the tank
         # floor's height is the gauge's zero
-        h = np.maximum(z - floor, 0.0)
-        hd = w[:, col]
-        e = np.interp(w[:, 0], t, h) - hd
-        metrics[f"height_rms_err_m_{name}"] = float(np.sqrt((e ** 2).mean()))
-        metrics[f"height_mean_err_m_{name}"] = float(e.mean())
-        sq.append(float((e ** 2).mean()))
-        if hd[0] < thr:        # a gauge dry at the start: the front's arrival there
-            ts = t[np.nonzero(h > thr)[0]]
-            td = w[np.nonzero(hd > thr)[0], 0]
-            if len(td):
-                metrics[f"arrival_s_{name}"] = float(ts[0]) if len(ts) else math.inf
-                metrics[f"arrival_data_s_{name}"] = float(td[0])
-                metrics[f"arrival_err_s_{name}"] = metrics[f"arrival_s_{name}"] - float(td[0])
-        series[f"sphgraph {name}"] = (t, h, "-", name)
+        series[f"sphgraph {name}"] = (t, np.maximum(z - floor, 0.0), "-", name)
         series[f"experiment {name} (x = {g[1]})"] = (data[:, 0], data[:, col], ".", name)
-    metrics["height_rms_err_rel_h0_all"] = float(np.sqrt(np.mean(sq)) / h0)
+    metrics = height_metrics(prm, data, {str(g[0]): series[f"sphgraph {g[0]}"][:2] for g in gauges}, sim.time)
+    w = data[data[:, 0] <= sim.time + 1e-12]
     notes = [f"gauges (name, x, y): {', '.join(f'{g[0]} ({g[1]}, {g[2]})' for g in gauges)}; height = highest "
              "point of the vertical line where the fluid's kernel sum reaches 0.5 (sphgraph.probes), less the "
              f"floor at z = {floor}; sampled every {prm['dt_sample']} s, compared at the data's times over "
