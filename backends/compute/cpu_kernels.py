@@ -114,7 +114,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
            prm, opt, ace, ar, ddt, cancel, visc):
     """`forces` with the Riemann-solver pressure term for fluid destinations
     (`[physics] riemann`, `interact.riemann_pair`): the same traversal and outputs, the U*
-    pressure jump as the diffusion term (ddt; an mDBC wall neighbour cancels it). A kernel of
+    pressure jump as the diffusion term (ddt; with riemann_wall = "cancel" a wall neighbour cancels it). A kernel of
     its own, so that `forces` (the default path) is compiled as it was."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]

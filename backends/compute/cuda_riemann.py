@@ -5,7 +5,7 @@ No kernel is written here: the force kernels of cuda_forces (the rank's own rows
 for host-binned halos) and of cuda_halo_kernels (ipc halos) are copied (cuda_variants.with_globals)
 with their fluid pair function replaced by `riemann_fluid_pair` -- `riemann_pair` (the pair maths numba-cpu
 calls, which returns `fluid_pair`'s tuple: the U* jump as the diffusion term, cancelled next to
-mDBC walls) in `fluid_pair`'s signature -- so the
+walls with riemann_wall = "cancel") in `fluid_pair`'s signature -- so the
 neighbour loops, sums and stores are those of the default path, which is compiled as it was.
 Boundary rows keep `bound_pair` (DBC continuity), as on the CPU.
 """
