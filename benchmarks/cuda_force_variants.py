@@ -34,7 +34,8 @@ from sphgraph.backends.compute import cuda_kernels as CK  # noqa: E402
 from sphgraph.backends.compute.cuda_forces import _store_boundary, _store_fluid  # noqa: E402,F401
 from sphgraph.backends.compute.cuda_retarget import RT, load4  # noqa: E402,F401
 from sphgraph.cells import cell_window  # noqa: E402
-from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2  # noqa: E402
+from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2, P_WALL_NOSLIP  # noqa: E402
+from sphgraph.particles import FIXED  # noqa: E402
 from sphgraph.physics.interact import bound_pair, fluid_pair  # noqa: E402
 
 PRODUCTION = CK.force_kernels
@@ -50,7 +51,7 @@ def _with_globals(f, **names):
 
 
 @njit(inline="always")
-def _fv_pair_cut(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+def _fv_pair_cut(xb, yb, zb, pb, vel4, kind, j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
                  support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
     """cuda_forces._fv_pair with the r^2 < 1e-18 cut in the candidate test."""
     drx = xa - xb
@@ -58,10 +59,11 @@ def _fv_pair_cut(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, v
     drz = za - zb
     r2 = drx * drx + dry * dry + drz * drz
     if not (r2 > support2 or r2 < 1e-18):
-        vxb, vyb, vzb, rho_b = load4(vel4, j4)
+        vxb, vyb, vzb, rho_b = load4(vel4, 4 * j)
+        still = b_bound and prm[P_WALL_NOSLIP] != 0.0 and kind[j] == FIXED
         fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, vxb, vyb, vzb,
-                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
-                                                ddt_kind, laminar)
+                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, still, prm,
+                                                kernel_id, ddt_kind, laminar)
         axx += fx
         ayy += fy
         azz += fz
@@ -74,7 +76,7 @@ def _fv_pair_cut(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, v
 
 
 @njit(inline="always")
-def _fv_part_one(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2,
+def _fv_part_one(pos4, vel4, kind, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2,
                  prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
     """cuda_forces._fv_part with one candidate a turn."""
     j = int32(j0)
@@ -82,7 +84,7 @@ def _fv_part_one(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya,
     while j < je:
         xb, yb, zb, pb = load4(pos4, 4 * j)
         axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-            xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+            xb, yb, zb, pb, vel4, kind, j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
             support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
         j = int32(j + 1)
     return axx, ayy, azz, arr, dd, cc, vmax
@@ -99,7 +101,7 @@ def _along(x, y, z, a):
     return x if a == 0 else (y if a == 1 else z)
 
 
-def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
+def k_forces_f(dpx, dpy, dpz, pos4, vel4, kind, i0, i1, start, ncells,
                o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
                prm_, dim, kernel_id_, ddt_kind_, laminar_, final, gx, gy, gz,
                ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
@@ -173,7 +175,8 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                 m = nfl + start[ncells + row + chi + 1] - start[ncells + row + clo]
                 for t in range(m):
                     b_bound = t >= nfl
-                    j4 = 4 * ((jb + t) if b_bound else (jf + t))
+                    jr = (jb + t) if b_bound else (jf + t)
+                    j4 = 4 * jr
                     drx = xa - pos4[j4]
                     dry = ya - pos4[j4 + 1]
                     drz = za - pos4[j4 + 2]
@@ -185,8 +188,8 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
                     dvz = vza - vel4[j4 + 2]
                     fx, fy, fz, fr, fd, fc, fv = fluid_pair(
                         drx, dry, drz, r2, dvx, dvy, dvz, vel4[j4], vel4[j4 + 1], vel4[j4 + 2], rho_a, inv_rho_a,
-                        vel4[j4 + 3], p_a, pos4[j4 + 3], mb if b_bound else mf, b_bound, prm, kernel_id, ddt_kind,
-                        laminar)
+                        vel4[j4 + 3], p_a, pos4[j4 + 3], mb if b_bound else mf, b_bound,
+                        b_bound and prm[P_WALL_NOSLIP] != 0.0 and kind[jr] == FIXED, prm, kernel_id, ddt_kind, laminar)
                     axx += fx
                     ayy += fy
                     azz += fz
@@ -211,7 +214,7 @@ def k_forces_f(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
         cuda.atomic.max(visc_, 0, sh[0])
 
 
-def k_forces_b(dpx, dpy, dpz, pos4, vel4, i0, i1, start, ncells,
+def k_forces_b(dpx, dpy, dpz, pos4, vel4, kind, i0, i1, start, ncells,
                o0, o1, o2, inv_size, n0, n1, n2, a0, a1, a2, reach,
                prm_, dim, kernel_id_, final, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """Boundary destinations rows i0..i1-1: fluid candidates only (DBC continuity).

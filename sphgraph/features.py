@@ -38,8 +38,7 @@ from .graph.kinds import TaskKind as K
 from .particles import MOVING
 
 SHIFT_KINDS = (K.SHIFT_INTERIOR, K.SHIFT_HALO_1, K.SHIFT_HALO_2, K.SHIFT_DISPLACEMENT, K.SHIFT_APPLY)
-MDBC_SUPPORTED = ("--backend numba-cpu or numba-cuda (one rank or several), [[motion]] bodies with "
-                  "boundary = \"mdbc\" (no-slip walls' continuity takes a still wall)")
+MDBC_SUPPORTED = "--backend numba-cpu or numba-cuda (one rank or several)"
 MDBC_KINDS = (K.MDBC, K.SEND_MDBC, K.RECV_MDBC_1, K.RECV_MDBC_2)
 
 
@@ -203,7 +202,6 @@ class Features:
         if ph.boundary != "dbc":
             why = (f"--backend {name}" if "mdbc" not in have
                    else f"{nranks} ranks on --backend {name}" if nranks != 1 and "mdbc-ranks" not in have
-                   else "[[motion]] bodies with no-slip walls" if s.extra.get("motion") and ph.boundary == "mdbc-noslip"
                    else None)
             if why is not None:
                 raise InputError(f"{s.source}: physics.boundary: \"{ph.boundary}\" runs with {MDBC_SUPPORTED} "

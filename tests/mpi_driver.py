@@ -9,6 +9,7 @@ Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`)
                       the mDBC exchange under MPI against the single-rank run, to TOL
   mdbc-motion2d       mDBC on a moving body (tests/test_mdbc_motion.py's carried tank, 50 steps)
                       against the single-rank run, to TOL
+  mdbc-noslip-motion2d  the same with no-slip walls and a laminar viscosity
   schedules           every shipped schedule, each also with halo_order reversed, gives
                       bit-identical particles (STEPS_SCHED steps, 2D)
   conformance         the comm conformance behaviours (tests/test_comm_conformance.py)
@@ -107,16 +108,16 @@ def check_mdbc(steps=60):
             "density_rel_err": rho, "ids": bad or "ok"}
 
 
-def check_mdbc_motion(steps=50):
+def check_mdbc_motion(steps=50, noslip=False):
     """mDBC on a moving body under MPI: tests/test_mdbc_motion.py's carried tank (0.6 m wide,
     3 layers, carried with its water at U = 0.3 m/s; the tank's rows cross the cut) against
-    the single-rank run, to TOL."""
+    the single-rank run, to TOL; `noslip`: with no-slip walls and a laminar viscosity."""
     from mpi4py import MPI
 
     from sphgraph import Simulation
-    from test_mdbc_motion import U, scene as carried
+    from test_mdbc_motion import U, noslip_scene, scene as carried
     comm = MPI.COMM_WORLD
-    sc = carried(width=0.6)
+    sc = noslip_scene(U, width=0.6) if noslip else carried(width=0.6)
 
     def go(kind):
         sim = Simulation(sc, comm=kind, schedule="bulk-synchronous", decomposition_axis="x")
@@ -134,7 +135,7 @@ def check_mdbc_motion(steps=50):
     same = a["id"].shape == ref["id"].shape and np.array_equal(a["id"], ref["id"])
     err = float(np.abs(a["position"] - ref["position"]).max()) if same else np.inf
     rho = float(np.abs(a["density"] / ref["density"] - 1).max()) if same else np.inf
-    return {"check": "mdbc-motion2d", "ok": bool(same and err <= TOL * span and rho <= TOL), "ranks": comm.size,
+    return {"check": "mdbc-noslip-motion2d" if noslip else "mdbc-motion2d", "ok": bool(same and err <= TOL * span and rho <= TOL), "ranks": comm.size,
             "steps": steps, "rel_err": err / span, "density_rel_err": rho}
 
 
@@ -285,6 +286,7 @@ def check_cuda_mdbc():
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
           "cuda-ipc": check_cuda_ipc, "cuda-mdbc": check_cuda_mdbc,
           "equiv2d-migrating": lambda: check_equiv("2d", 2.0), "mdbc2d": check_mdbc, "mdbc-motion2d": check_mdbc_motion,
+          "mdbc-noslip-motion2d": lambda: check_mdbc_motion(noslip=True),
           "schedules": check_schedules, "conformance": check_conformance}
 
 

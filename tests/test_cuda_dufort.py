@@ -66,14 +66,15 @@ def test_with_sum_adds_k_a_and_leaves_the_production_sums():
     vel4 = np.array([0.1, -0.2, 0.05, 1001.0])
     sums = (0.5, -0.25, 0.125, 3.0, 0.75, 0, 0.01)
     for b_bound in (False, True):
-        a = (0.01, 0.02, 0.0, 1500.0, vel4, 0, b_bound, 0.04, 0.05, 0.03, 2000.0, 0.2, 0.1, 0.0, 1000.5,
+        a = (0.01, 0.02, 0.0, 1500.0, vel4, np.ones(1, np.int8), 0, b_bound, 0.04, 0.05, 0.03, 2000.0, 0.2, 0.1, 0.0, 1000.5,
              1.0 / 1000.5, prm[P_MASS_F], prm[P_SUPPORT2], prm, kid, ddtk, 0)
         plain = CF._fv_pair(*a, *sums)
         got = pair_df(*a, *sums, 2.0)
         d = (0.04 - 0.01, 0.05 - 0.02, 0.03 - 0.0)
         k_ab = fluid_pair_df(*d, d[0] * d[0] + d[1] * d[1] + d[2] * d[2], 0.2 - 0.1, 0.1 + 0.2, 0.0 - 0.05,
                              0.1, -0.2, 0.05, 1000.5,
-                             1.0 / 1000.5, 1001.0, 2000.0, 1500.0, prm[P_MASS_F], b_bound, prm, kid, ddtk, 0)[-1]
+                             1.0 / 1000.5, 1001.0, 2000.0, 1500.0, prm[P_MASS_F], b_bound, b_bound, prm, kid,
+                             ddtk, 0)[-1]
         assert got[:7] == plain, (got, plain)
         assert got[7] == 2.0 + k_ab
         assert (k_ab == 0.0) == b_bound, k_ab

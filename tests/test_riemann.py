@@ -27,7 +27,7 @@ def _pair(prm, ra, rb, va, vb, rho_a, rho_b, pa, pb, m=1.0):
     dv = va - vb
     return np.array(riemann_pair(d[0], d[1], 0.0, float(d @ d), dv[0], dv[1], 0.0, vb[0], vb[1], 0.0, rho_a,
                                  1.0 / rho_a, rho_b,
-                                 pa, pb, m, False, prm, K_WENDLAND, False))
+                                 pa, pb, m, False, False, prm, K_WENDLAND, False))
 
 
 def test_pair_conserves_momentum_and_the_limiter_acts_in_compression_only():

@@ -247,12 +247,12 @@ def test_noslip_wall_velocity_reaches_the_viscous_terms_only():
     def fp(v_b, bound=True, p=prm):
         dv = va - v_b
         return np.array(fluid_pair(*r, float(r @ r), *dv, *v_b, 1001.0, 1 / 1001.0, 1000.5, 300.0, 250.0,
-                                   c.mass_bound, bound, p, kid, 0, True), float)
+                                   c.mass_bound, bound, bound, p, kid, 0, True), float)
 
     def rp(v_b, bound=True, p=prm):
         dv = va - v_b
         return np.array(riemann_pair(*r, float(r @ r), *dv, *v_b, 1001.0, 1 / 1001.0, 1000.5, 300.0, 250.0,
-                                     c.mass_bound, bound, p, kid, True), float)
+                                     c.mass_bound, bound, bound, p, kid, True), float)
     moving, still = fp(vb), fp(z)
     assert moving[3] == pytest.approx(still[3], rel=1e-14)          # continuity: the still wall's
     assert abs(moving[0] - still[0]) > 1e-3 * abs(still[0])         # viscosity: the no-slip velocity's

@@ -20,6 +20,7 @@ from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, ri
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,  # noqa: E402
                                         predict_density, verlet_axis, verlet_density)
 from sphgraph.physics.kernels import grad_factor  # noqa: E402
+from sphgraph.particles import FIXED  # noqa: E402
 
 
 @njit(parallel=True, fastmath=True, cache=True)
@@ -82,7 +83,7 @@ def forces(dpos, dvel, drho, dpress, dkind,
                             fx, fy, fz, fr, fd, fc, fv = fluid_pair(
                                 drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
                                 svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
-                                mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
+                                mb if b_bound else mf, b_bound, skind[j] == FIXED, prm, kernel, ddt_kind, laminar)
                             axx += fx
                             ayy += fy
                             azz += fz
@@ -165,7 +166,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
                             fx, fy, fz, fr, fd, fc, fv = riemann_pair(
                                 drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
                                 svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
-                                mb if b_bound else mf, b_bound, prm, kernel, laminar)
+                                mb if b_bound else mf, b_bound, skind[j] == FIXED, prm, kernel, laminar)
                             axx += fx
                             ayy += fy
                             azz += fz
@@ -252,7 +253,7 @@ def forces_df(dpos, dvel, drho, dpress, dkind,
                             fx, fy, fz, fr, fd, fc, fv = fluid_pair(
                                 drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
                                 svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
-                                mb if b_bound else mf, b_bound, prm, kernel, ddt_kind, laminar)
+                                mb if b_bound else mf, b_bound, skind[j] == FIXED, prm, kernel, ddt_kind, laminar)
                             axx += fx
                             ayy += fy
                             azz += fz

@@ -76,10 +76,10 @@ class CudaForceDispatch:
                             int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]),
                             1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]))
                 if nf:
-                    kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], 0, nf, start, int(g["ncells"]),
+                    kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], A["kind"], 0, nf, start, int(g["ncells"]),
                                                          *rel_args, *out, *dfa)
                 if n > nf:
-                    kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], nf, n, start,
+                    kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], A["kind"], nf, n, start,
                                                              int(g["ncells"]), *rel_args, *out)
             else:           # k_forces_f / k_forces_b (SPHGRAPH_CUDA_FORCES=f)
                 geo = (start, int(g["ncells"]), float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
@@ -87,12 +87,13 @@ class CudaForceDispatch:
                        int(reach), dv.prm_d(state), dim, int(state.opt[O_KERNEL]))
                 if nf:
                     kf.k_forces_f[CK.blocks(nf, FB), FB](
-                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], 0, nf, *geo,
+                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], A["kind"], 0, nf, *geo,
                         int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]), 1 if final else 0,
                         ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out)
                 if n > nf:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](
-                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], nf, n, *geo, 1 if final else 0, *out)
+                        A["px"], A["py"], A["pz"], A["pos4"], A["vel4"], A["kind"], nf, n, *geo, 1 if final else 0,
+                        *out)
         elif n:
             kh = (self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else
                   self._on(state, CR.build(dv.dtype)).k_forces if CR.enabled(state) else k.k_forces)

@@ -18,7 +18,8 @@ import numpy as np
 from numba import cuda, int32, njit
 
 from sphgraph.cells import cell_window
-from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2
+from sphgraph.config import P_H, P_MASS_B, P_MASS_F, P_SUPPORT2, P_WALL_NOSLIP
+from sphgraph.particles import FIXED
 from sphgraph.physics.eos import tait
 from sphgraph.physics.interact import bound_pair, fluid_pair
 
@@ -114,8 +115,8 @@ def k_forces(dpx, dpy, dpz, drx_, dry_, drz_, dvx_, dvy_, dvz_, drho, dpress, dk
                     if a_fluid:
                         fx, fy, fz, fr, fd, fc, fv = fluid_pair(
                             drx, dry, drz, r2, dvx, dvy, dvz, svx[j], svy[j], svz[j] if dim == 3 else zero, rho_a,
-                            inv_rho_a, srho[j], p_a, spress[j], mb if b_bound else mf, b_bound, prm, kernel_id,
-                            ddt_kind, laminar)
+                            inv_rho_a, srho[j], p_a, spress[j], mb if b_bound else mf, b_bound, skind[j] == FIXED,
+                            prm, kernel_id, ddt_kind, laminar)
                         axx += fx
                         ayy += fy
                         azz += fz
@@ -199,10 +200,12 @@ def _store_boundary(i, final, dim3, zero, arr, ax_, ay_, az_, ar_, ddt_, cancel_
 
 
 @njit(inline="always")
-def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b, support2,
-             prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
-    """k_forces_fv's test and pair body for the candidate at record j4 (position record
-    xb, yb, zb, pb): the sums (axx .. vmax) with its contribution when it is within reach.
+def _fv_pair(xb, yb, zb, pb, vel4, kind, j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+             support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
+    """k_forces_fv's test and pair body for the candidate row j (position record xb, yb, zb,
+    pb): the sums (axx .. vmax) with its contribution when it is within reach. Its kind is
+    read only for a boundary candidate of a scene with no-slip walls (prm is constant: the
+    load folds away elsewhere).
     The row itself passes the test and adds exact zeros (every term of fluid_pair carries
     r_ab or v_ab . r_ab): no r^2 < 1e-18 cut, one compare a candidate less. Only coincident
     rows come that close (float32 relative positions resolve ~1e-7 of the domain)."""
@@ -211,10 +214,11 @@ def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, 
     drz = za - zb
     r2 = drx * drx + dry * dry + drz * drz
     if not r2 > support2:
-        vxb, vyb, vzb, rho_b = load4(vel4, j4)
+        vxb, vyb, vzb, rho_b = load4(vel4, 4 * j)
+        still = b_bound and prm[P_WALL_NOSLIP] != 0.0 and at(kind, j) == FIXED
         fx, fy, fz, fr, fd, fc, fv = fluid_pair(drx, dry, drz, r2, vxa - vxb, vya - vyb, vza - vzb, vxb, vyb, vzb,
-                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, prm, kernel_id,
-                                                ddt_kind, laminar)
+                                                rho_a, inv_rho_a, rho_b, p_a, pb, mass_b, b_bound, still, prm,
+                                                kernel_id, ddt_kind, laminar)
         axx += fx
         ayy += fy
         azz += fz
@@ -227,7 +231,7 @@ def _fv_pair(xb, yb, zb, pb, vel4, j4, b_bound, xa, ya, za, p_a, vxa, vya, vza, 
 
 
 @njit(inline="always")
-def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2,
+def _fv_part(pos4, vel4, kind, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2,
              prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax):
     """k_forces_fv's loop over the candidates j0..j1-1 of one part of a row (fluid, or
     boundary with `b_bound`), on a 32-bit row index (rows < 2^31: `start` is int32): with a
@@ -243,11 +247,11 @@ def _fv_part(pos4, vel4, j0, j1, b_bound, mass_b, xa, ya, za, p_a, vxa, vya, vza
         xb, yb, zb, pb = load4(pos4, 4 * j)
         xc, yc, zc, pc = load4(pos4, 4 * min(j2, jl))
         axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-            xb, yb, zb, pb, vel4, 4 * j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
+            xb, yb, zb, pb, vel4, kind, j, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, mass_b,
             support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
         if j2 < je:
             axx, ayy, azz, arr, dd, cc, vmax = _fv_pair(
-                xc, yc, zc, pc, vel4, 4 * j2, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a,
+                xc, yc, zc, pc, vel4, kind, j2, b_bound, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a,
                 mass_b, support2, prm, kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
         j = int32(j + 2)
     return axx, ayy, azz, arr, dd, cc, vmax
@@ -354,7 +358,7 @@ def _row_cut(q0, q1, q2, c1, c2, o0, o1, o2, size, inv_size, reach2, n0, a1, a2,
     return rr, clo, chi
 
 
-def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_forces_fv(pos4, vel4, kind, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """Fluid destinations rows i0..i1-1 against the rank's own rows (kind-split layout):
     per row of cells its fluid candidates, then its boundary ones, with the pair physics
@@ -409,10 +413,10 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, kind, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, kind, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, final, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
@@ -426,7 +430,7 @@ def k_forces_fv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tp
         _warp_max_into(visc_, vmax)
 
 
-def k_forces_bv(pos4, vel4, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_forces_bv(pos4, vel4, kind, i0, i1, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
                 a0, a1, a2, final, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """Boundary destinations rows i0..i1-1: fluid candidates only (DBC continuity), the
     sums of k_forces, with k_forces_fv's record loads, cell ranges and trimmed rows;

@@ -137,7 +137,7 @@ class CudaHaloDispatch:
         gvec = np.zeros(3)
         gvec[:dv.dim] = state.consts.gravity
         v = halo.views
-        args = (v["pos4"], v["vel4"], v["start"], int(halo.ncells), ft(rel[0]), ft(rel[1]), ft(rel[2]), ft(inv),
+        args = (v["pos4"], v["vel4"], v["kind"], v["start"], int(halo.ncells), ft(rel[0]), ft(rel[1]), ft(rel[2]), ft(inv),
                 ft(pad), ft(tpad), int(halo.dims[0]), int(halo.dims[1]), int(halo.dims[2]),
                 int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
                 buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])

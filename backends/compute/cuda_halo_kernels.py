@@ -74,10 +74,10 @@ def k_halo_pack(start, f0, nch, ncells, pos4, vel4, kind, cap, o_start, o_pos4, 
         i += cuda.gridsize(1)
 
 
-def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, kind, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
               a0, a1, a2, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """k_forces_fv for fluid targets rng[ri] .. rng[ri + 1] - 1 of (tpos4, tvel4) against the sources
-    (pos4, vel4, start) of a halo's grid: the same loop and pair sums; partial sums out."""
+    (pos4, vel4, kind, start) of a halo's grid: the same loop and pair sums; partial sums out."""
     prm = cuda.const.array_like(PRMC)
     kernel_id = KID
     ddt_kind = DDTK
@@ -117,10 +117,10 @@ def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_
             j0, j1 = _trimmed(pos4, start, row, clo, chi, a0, lo_t, hi_t)
             b0, b1 = _trimmed(pos4, start, ncells + row, clo, chi, a0, lo_t, hi_t)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, kind, j0, j1, False, mf, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
             axx, ayy, azz, arr, dd, cc, vmax = _fv_part(
-                pos4, vel4, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
+                pos4, vel4, kind, b0, b1, True, mb, xa, ya, za, p_a, vxa, vya, vza, rho_a, inv_rho_a, support2, prm,
                 kernel_id, ddt_kind, laminar, axx, ayy, azz, arr, dd, cc, vmax)
     _store_fluid(i, False, a0 >= 0 and a1 >= 0 and a2 >= 0, gx, gy, gz, axx, ayy, azz, arr, dd, cc,
                  ax_, ay_, az_, ar_, ddt_, cancel_)
@@ -131,7 +131,7 @@ def k_halo_fv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_
         _warp_max_into(visc_, vmax)
 
 
-def k_halo_bv(tpos4, tvel4, rng, ri, pos4, vel4, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
+def k_halo_bv(tpos4, tvel4, rng, ri, pos4, vel4, kind, start, ncells, o0, o1, o2, inv_size, pad, tpad, n0, n1, n2,
               a0, a1, a2, gx, gy, gz, ax_, ay_, az_, ar_, ddt_, cancel_, visc_):
     """k_forces_bv for boundary targets rng[ri] .. rng[ri + 1] - 1 against a halo's fluid sources."""
     prm = cuda.const.array_like(PRMC)

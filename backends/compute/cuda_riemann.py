@@ -28,7 +28,7 @@ def enabled(state) -> bool:
 
 @njit(inline="always")
 def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b,
-                       mass_b, b_bound, prm, kernel, ddt_kind, laminar):
+                       mass_b, b_bound, b_still, prm, kernel, ddt_kind, laminar):
     """`riemann_pair` in `fluid_pair`'s signature (ddt_kind unused: the pair's diffusion is
     the U* jump). The row itself adds nothing: k_forces_fv's loop has no r^2 < 1e-18 cut
     (every term of fluid_pair is an exact zero there), and riemann_pair divides by r."""
@@ -36,7 +36,7 @@ def riemann_fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, i
         z = 0.0 * rho_a
         return z, z, z, z, z, 0, z
     return riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b,
-                        p_a, p_b, mass_b, b_bound, prm, kernel, laminar)
+                        p_a, p_b, mass_b, b_bound, b_still, prm, kernel, laminar)
 
 
 # the fluid candidate loop of k_forces_fv / k_halo_fv with the Riemann pair, then the kernels

@@ -51,11 +51,16 @@ truncation term); an mDBC wall reads that lowered density at its ghost and pushe
 In a fast impact on mDBC walls that loop can let fluid through the wall, which "cancel" stops;
 but "cancel" leaves the rows at the wall without any density dissipation, and the wall pressure
 they give turns to acoustic noise (measured in docs/validation.md, "Riemann term next to walls").
-mDBC no-slip walls (`[physics] boundary = "mdbc-noslip"`, prm P_WALL_NOSLIP = 1): a boundary
-b's velocity is the mirrored tangential fluid velocity its ghost sees (physics.mdbc), which the
-viscous terms (artificial, laminar, the dt term) take; the continuity equation and the
-Riemann term's compression take the wall's own velocity, zero (mDBC's walls do not move), as
-DualSPHysics' mDBC does (the no-slip velocity goes to the viscosity only). In the continuity
+mDBC no-slip walls (`[physics] boundary = "mdbc-noslip"`, prm P_WALL_NOSLIP = 1): a still
+wall's row b (kind FIXED, `b_still`) has for velocity the mirrored tangential fluid velocity
+its ghost sees (physics.mdbc), which the viscous terms (artificial, laminar, the dt term)
+take; the continuity equation and the Riemann term's compression take the wall's own
+velocity, zero, as DualSPHysics' mDBC does (the no-slip velocity goes to the viscosity only).
+A moving body's rows (kind MOVING) keep the body's velocity, and every term takes it: the
+continuity the wall's own velocity, as above, and the viscous terms the body's velocity at
+its rows (DualSPHysics' DBC and mDBC "vel=0" modes on a moving body) rather than a mirror
+about it, which would need the body's velocity as a second per-row velocity in every pair
+loop and halo (DualSPHysics' no-slip keeps one, MotionVel). In the continuity
 sum the mirrored velocity's variation along the wall reads as a compression or expansion of
 the fluid next to it: behind Yeh & Petroff's surge front over the wet bed it lowered the rows'
 density and pulled fluid into the floor (docs/validation.md).
@@ -96,20 +101,22 @@ def gravity_dot(drx, dry, drz, prm, s):
 
 
 @njit(inline="always", cache=True)
-def wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_bound, prm):
-    """v_ab . r_ab for the continuity equation: `dot` itself, or with b an mDBC no-slip wall
-    row (velocity vb: its no-slip velocity, for the viscous terms only) v_a . r_ab, the wall's
-    own velocity being zero (module docstring). On the GPU prm is constant: the test folds
-    away where the scene has no such walls."""
-    if b_bound and prm[P_WALL_NOSLIP] != 0.0:
+def wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_still, prm):
+    """v_ab . r_ab for the continuity equation: `dot` itself, or with b a still mDBC no-slip
+    wall row (`b_still`; velocity vb: its no-slip velocity, for the viscous terms only)
+    v_a . r_ab, the wall's own velocity being zero (module docstring). On the GPU prm is
+    constant: the test folds away where the scene has no such walls."""
+    if prm[P_WALL_NOSLIP] != 0.0 and b_still:
         return dot + (vxb * drx + vyb * dry + vzb * drz)
     return dot
 
 
 @njit(inline="always", cache=True)
 def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
-               b_bound, prm, kernel, ddt_kind, laminar):
-    """Contribution of b to fluid particle a (v_ab = dv, v_b = vb).
+               b_bound, b_still, prm, kernel, ddt_kind, laminar):
+    """Contribution of b to fluid particle a (v_ab = dv, v_b = vb). `b_bound`: b is a
+    boundary row; `b_still`: b is a row of a still wall (kind FIXED), whose velocity under
+    no-slip mDBC is the mirror the viscous terms take (wall_dot).
 
     Returns (ax, ay, az, ar, ddt, cancel, visc) where `cancel` is 1 when b
     switches a's density diffusion off (DBC neighbour), `visc` the ViscDt term / h.
@@ -126,7 +133,7 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a
     # a still no-slip wall's continuity, v_a . r_ab (wall_dot), added as a term of its own:
     # folding it into `dot` let the CPU's fastmath regroup the default path (the example
     # digests moved); added, the path without such walls compiles as before
-    if b_bound and prm[P_WALL_NOSLIP] != 0.0:
+    if prm[P_WALL_NOSLIP] != 0.0 and b_still:
         ar += (mass_b * rho_a) * (fac * (vxb * drx + vyb * dry + vzb * drz)) * inv_rho_b
     dot_rr2 = dot * inv_r2e
     coef = (p_a + p_b) * (-mass_b * inv_rho_a) * inv_rho_b
@@ -169,7 +176,7 @@ def fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a
 
 @njit(inline="always", cache=True)
 def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
-                 b_bound, prm, kernel, laminar):
+                 b_bound, b_still, prm, kernel, laminar):
     """Contribution of b to fluid particle a with the Riemann-solver pressure term (module
     docstring), in `fluid_pair`'s shape: (ax, ay, az, ar, ddt, cancel, visc), visc the ViscDt
     term / h. The continuity's U* pressure jump is the pair's `ddt` (summed apart and added
@@ -183,7 +190,7 @@ def riemann_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho
     inv_r2e = 1.0 / (r2 + prm[P_ETA2])
     r = math.sqrt(r2)
     dot = dvx * drx + dvy * dry + dvz * drz          # v_ab . r_ab = -r (U_L - U_R)
-    dot_c = wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_bound, prm)
+    dot_c = wall_dot(dot, drx, dry, drz, vxb, vyb, vzb, b_still, prm)
     du = -dot_c / r                                  # U_L - U_R (> 0: the pair is compressed)
     rc = prm[P_RHO0C0]
     mf = (mass_b * rho_a) * fac * inv_rho_b
@@ -213,13 +220,14 @@ def diffusion_coef(r2, fac, rho_b, mass_b, prm):
 
 @njit(inline="always", cache=True)
 def fluid_pair_df(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a, inv_rho_a, rho_b, p_a, p_b, mass_b,
-                  b_bound, prm, kernel, ddt_kind, laminar):
+                  b_bound, b_still, prm, kernel, ddt_kind, laminar):
     """`fluid_pair` and the pair's k_ab (`diffusion_coef`) for the DuFort-Frankel step: a fluid
     b adds k_ab to K_a, a boundary b nothing (where it cancels a's diffusion, K_a is zeroed
     with the term when the parts are summed). Returns fluid_pair's tuple, then k_ab."""
     ax, ay, az, ar, ddt, cancel, visc = fluid_pair(drx, dry, drz, r2, dvx, dvy, dvz, vxb, vyb, vzb, rho_a,
                                                    inv_rho_a, rho_b,
-                                                   p_a, p_b, mass_b, b_bound, prm, kernel, ddt_kind, laminar)
+                                                   p_a, p_b, mass_b, b_bound, b_still, prm, kernel, ddt_kind,
+                                                   laminar)
     k = 0.0 * ar if b_bound else diffusion_coef(r2, grad_factor(r2, prm, kernel), rho_b, mass_b, prm)
     return ax, ay, az, ar, ddt, cancel, visc, k
 
