@@ -103,6 +103,8 @@ def main(argv=None):
     ap.add_argument("--visc-alpha", type=float, help="artificial viscosity alpha (default 0.01)")
     ap.add_argument("--laminar-nu", type=float, help="laminar viscosity [m^2/s] (default off)")
     ap.add_argument("--order", type=int, default=1, choices=(1, 2), help="piston wavemaker order (2: Madsen 1971)")
+    ap.add_argument("--boundary", choices=("dbc", "mdbc", "mdbc-noslip"),
+                    help="wall and paddle treatment (default: the scene's, dbc)")
     ap.add_argument("--gauges", type=float, nargs="+", default=[0.28, 0.5, 0.75, 1.0, 1.25],
                     help="gauge positions in wavelengths from the paddle (1 and 1.25 are always added)")
     args = ap.parse_args(argv)
@@ -111,7 +113,8 @@ def main(argv=None):
     x_paddle = 1.5 * args.dp
     fracs = sorted(set(args.gauges) | {1.0, 1.25})
     gs = [x_paddle + f * L for f in fracs]
-    phys = {k: v for k, v in (("visc_alpha", args.visc_alpha), ("laminar_nu", args.laminar_nu)) if v is not None}
+    phys = {k: v for k, v in (("visc_alpha", args.visc_alpha), ("laminar_nu", args.laminar_nu),
+                              ("boundary", args.boundary)) if v is not None}
     r = flume(dp=args.dp, end_time=args.end, paddle=args.type, height=H, damping=not args.no_damping,
               gauges=gs, physics=phys, order=args.order)
     cg = waves.group_velocity(T, 0.3)
