@@ -33,7 +33,12 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
         "zhang-mdbc-cancel": ({"boundary": "mdbc"}, {"riemann": "zhang2017", "riemann_eta": 0.3,
                                                      "riemann_wall": "cancel"}),
         "zhang-mdbc4-cancel": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3,
-                                                                  "riemann_wall": "cancel"})}
+                                                                  "riemann_wall": "cancel"}),
+        # bed friction: no-slip mDBC walls and water's laminar viscosity (1.0e-6 m^2/s, not fitted)
+        "noslip4": ({"boundary": "mdbc-noslip", "layers": 4}, {"laminar_nu": 1e-6}),
+        "zhang-noslip4-cancel": ({"boundary": "mdbc-noslip", "layers": 4},
+                                 {"riemann": "zhang2017", "riemann_eta": 0.3, "riemann_wall": "cancel",
+                                  "laminar_nu": 1e-6})}
 
 
 def plot(rows, path, case) -> None:
