@@ -91,6 +91,36 @@ def _fields_for(dim: int) -> list[str]:
     return [f for f in SNAPSHOT_FIELDS if not (dim == 2 and f == "velocity_z")]
 
 
+def colour_range(values, field: str, tail: float = 0.5) -> dict:
+    """Colour limits for a field's fluid values, as keyword arguments of ``scatter``.
+
+    WCSPH leaves a few rows at an impact or a wall with pressures tens of times the bulk's;
+    spread over the whole range they would leave every other particle one colour. The
+    limits are the `tail` and 100 - `tail` percentiles (signed fields: symmetric about 0 at
+    the 100 - `tail` percentile of |v|), and ``extend`` tells the colour bar which side has
+    values beyond them (drawn in the end colours). ``kind`` and ``id`` keep fixed limits.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if field == "kind":
+        return {"cmap": "tab10", "vmin": -0.5, "vmax": 9.5, "extend": "neither"}
+    if field == "id" or v.size == 0:
+        return {"cmap": "viridis", "vmin": None, "vmax": None, "extend": "neither"}
+    if field.startswith("velocity_"):
+        hi = float(np.percentile(np.abs(v), 100.0 - tail)) or float(np.abs(v).max()) or 1.0
+        over, under = bool((v > hi).any()), bool((v < -hi).any())
+        lo = -hi
+        cmap = "coolwarm"
+    else:
+        lo, hi = (float(x) for x in np.percentile(v, [tail, 100.0 - tail]))
+        if hi <= lo:
+            lo, hi = float(v.min()), float(v.max())
+        under, over = bool((v < lo).any()), bool((v > hi).any())
+        cmap = "viridis"
+    extend = {(False, False): "neither", (True, False): "min", (False, True): "max", (True, True): "both"}
+    return {"cmap": cmap, "vmin": lo, "vmax": hi, "extend": extend[(under, over)]}
+
+
 def plot_snapshot(out_dir, time: float | None = None, field: str = "pressure",
                   path=None) -> str:
     """Draw one frame's particles coloured by a field.
@@ -169,15 +199,10 @@ def plot_snapshot(out_dir, time: float | None = None, field: str = "pressure",
     bound = sel[:0] if colour_all else sel[kind[sel] != 0]
     if bound.size:
         ax.scatter(x[bound], y[bound], s=s, c="0.6", marker="s", linewidths=0, label="boundary")
-    cmap, norm_kw = "viridis", {}
-    if field.startswith("velocity_"):
-        vmax = float(np.max(np.abs(values[fluid]))) if fluid.size else 1.0
-        cmap, norm_kw = "coolwarm", {"vmin": -vmax or -1.0, "vmax": vmax or 1.0}
-    elif field == "kind":
-        cmap, norm_kw = "tab10", {"vmin": -0.5, "vmax": 9.5}
-    sc = ax.scatter(x[fluid], y[fluid], s=s, c=values[fluid], cmap=cmap, linewidths=0,
-                    **norm_kw)
-    fig.colorbar(sc, ax=ax, label=label, shrink=0.9)
+    rng = colour_range(values[fluid], field)
+    extend = rng.pop("extend")
+    sc = ax.scatter(x[fluid], y[fluid], s=s, c=values[fluid], linewidths=0, **rng)
+    fig.colorbar(sc, ax=ax, label=label, shrink=0.9, extend=extend)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel(ylabel)
@@ -225,8 +250,10 @@ def plot_scene3d(out_dir, time: float | None = None, field: str = "speed", path=
         ax.scatter(*pos[walls].T, s=s, c="0.75", alpha=0.12, linewidths=0, depthshade=False)
         ax.scatter(*pos[b[body]].T, s=s, c="0.3", alpha=0.8, linewidths=0, depthshade=False)
     f = np.flatnonzero(kind == 0)
-    sc = ax.scatter(*pos[f].T, s=s, c=values[f], cmap="viridis", linewidths=0, depthshade=False)
-    fig.colorbar(sc, ax=ax, label=label, shrink=0.6, pad=0.02)
+    rng = colour_range(values[f], field)
+    extend = rng.pop("extend")
+    sc = ax.scatter(*pos[f].T, s=s, c=values[f], linewidths=0, depthshade=False, **rng)
+    fig.colorbar(sc, ax=ax, label=label, shrink=0.6, pad=0.02, extend=extend)
     ax.view_init(elev=24, azim=-58)
     ax.locator_params(nbins=4)
     ax.set_xlabel("x [m]")

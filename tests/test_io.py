@@ -295,6 +295,23 @@ def test_readers_on_missing_output(tmp_path):
 
 
 # ---------------------------------------------------------------------- plots
+def test_colour_range_leaves_impact_outliers_out_of_the_scale():
+    from sphgraph.plots import colour_range
+
+    rng = np.random.default_rng(3)
+    bulk = rng.uniform(0.0, 3000.0, 2000)                       # hydrostatic-like pressures
+    p = np.concatenate([bulk, [6.0e4, -5.5e4]])                 # two rows at an impact
+    r = colour_range(p, "pressure")
+    assert 0.0 <= r["vmin"] < 50.0 and 2950.0 < r["vmax"] <= 3000.0
+    assert r["extend"] == "both" and r["cmap"] == "viridis"
+    assert colour_range(bulk, "pressure", tail=0.0)["extend"] == "neither"
+    v = np.concatenate([rng.uniform(-0.5, 1.0, 2000), [40.0]])   # nothing below -0.5
+    r = colour_range(v, "velocity_x")
+    assert r["vmin"] == -r["vmax"] and 0.97 < r["vmax"] <= 1.0 and r["extend"] == "max"
+    assert colour_range(np.full(5, 2.0), "density")["vmin"] == 2.0     # a uniform field
+    assert colour_range(np.arange(4.0), "kind")["vmax"] == 9.5
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_plot_snapshot_png(tmp_path, dim):
     pytest.importorskip("matplotlib")
