@@ -97,8 +97,9 @@ def colour_range(values, field: str, tail: float = 0.5) -> dict:
     WCSPH leaves a few rows at an impact or a wall with pressures tens of times the bulk's;
     spread over the whole range they would leave every other particle one colour. The
     limits are the `tail` and 100 - `tail` percentiles (signed fields: symmetric about 0 at
-    the 100 - `tail` percentile of |v|), and ``extend`` tells the colour bar which side has
-    values beyond them (drawn in the end colours). ``kind`` and ``id`` keep fixed limits.
+    the 100 - `tail` percentile of |v|) when the whole range is more than 1.5 times theirs,
+    else the whole range; ``extend`` tells the colour bar which side has values beyond the
+    limits (drawn in the end colours). ``kind`` and ``id`` keep fixed limits.
     """
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
@@ -108,12 +109,14 @@ def colour_range(values, field: str, tail: float = 0.5) -> dict:
         return {"cmap": "viridis", "vmin": None, "vmax": None, "extend": "neither"}
     if field.startswith("velocity_"):
         hi = float(np.percentile(np.abs(v), 100.0 - tail)) or float(np.abs(v).max()) or 1.0
+        if float(np.abs(v).max()) <= 1.5 * hi:
+            hi = float(np.abs(v).max())
         over, under = bool((v > hi).any()), bool((v < -hi).any())
         lo = -hi
         cmap = "coolwarm"
     else:
         lo, hi = (float(x) for x in np.percentile(v, [tail, 100.0 - tail]))
-        if hi <= lo:
+        if hi <= lo or float(v.max() - v.min()) <= 1.5 * (hi - lo):
             lo, hi = float(v.min()), float(v.max())
         under, over = bool((v < lo).any()), bool((v > hi).any())
         cmap = "viridis"
