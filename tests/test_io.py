@@ -313,6 +313,22 @@ def test_colour_range_leaves_impact_outliers_out_of_the_scale():
     assert colour_range(np.arange(4.0), "kind")["vmax"] == 9.5
 
 
+def test_plot_scene3d_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    from sphgraph.plots import plot_scene3d
+
+    out = tmp_path / "run"
+    write_run(out, 3, n=400)
+    path = plot_scene3d(out, field="pressure")
+    with open(path, "rb") as fh:
+        assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    assert os.path.getsize(path) > 1000
+    out2 = tmp_path / "run2"
+    write_run(out2, 2, n=100)
+    with pytest.raises(InputError, match="expected a 3D run"):
+        plot_scene3d(out2)
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_plot_snapshot_png(tmp_path, dim):
     pytest.importorskip("matplotlib")
