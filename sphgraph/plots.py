@@ -108,9 +108,11 @@ def colour_range(values, field: str, tail: float = 0.5) -> dict:
     if field == "id" or v.size == 0:
         return {"cmap": "viridis", "vmin": None, "vmax": None, "extend": "neither"}
     if field.startswith("velocity_"):
-        hi = float(np.percentile(np.abs(v), 100.0 - tail)) or float(np.abs(v).max()) or 1.0
-        if float(np.abs(v).max()) <= 1.5 * hi:
-            hi = float(np.abs(v).max())
+        a = np.abs(v)
+        hi = float(np.percentile(a, 100.0 - tail))
+        if float(a.max()) <= 1.5 * hi or hi == 0.0:
+            hi = float(a.max())
+        hi = hi or 1.0                   # a field at rest: a scale of +-1, not a zero-width one
         over, under = bool((v > hi).any()), bool((v < -hi).any())
         lo = -hi
         cmap = "coolwarm"

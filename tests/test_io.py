@@ -309,6 +309,7 @@ def test_colour_range_leaves_impact_outliers_out_of_the_scale():
     v = np.concatenate([rng.uniform(-0.5, 1.0, 2000), [40.0]])   # nothing below -0.5
     r = colour_range(v, "velocity_x")
     assert r["vmin"] == -r["vmax"] and 0.97 < r["vmax"] <= 1.0 and r["extend"] == "max"
+    assert colour_range(np.zeros(5), "velocity_y")["vmax"] == 1.0       # a field at rest
     assert colour_range(np.full(5, 2.0), "density")["vmin"] == 2.0     # a uniform field
     assert colour_range(np.arange(4.0), "kind")["vmax"] == 9.5
 
