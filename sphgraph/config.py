@@ -38,6 +38,9 @@ DIFFUSION_TIMES = ("leapfrog", "dufort-frankel")
 # (acoustic) Riemann solution with the low-dissipation limiter of Zhang, Hu & Adams 2017
 RIEMANNS = ("none", "zhang2017")
 RIEMANN_WALLS = ("skip", "cancel")     # what a wall neighbour does to the U* jump (riemann_pair)
+# the U* jump of fluid pairs: as Zhang, Hu & Adams 2017, or with its linear part removed
+# (sphgraph.physics.riemann_jump)
+RIEMANN_JUMPS = ("plain", "renormalised")
 
 # prm indices
 P_H, P_H2, P_SUPPORT2, P_AW, P_BW, P_C0, P_B, P_GAMMA, P_RHO0, P_ETA2 = range(10)
@@ -50,7 +53,7 @@ P_DDT_KCM = 30                   # delta 2h m_f c0: the Fourtakas term's constan
 P_WALL_NOSLIP = 31                # 1: boundary rows carry mDBC's no-slip velocity, for the viscous terms only (fluid_pair)
 P_RIEMANN_CANCEL, P_COUNT = 32, 33  # 1: a boundary neighbour cancels the row's U* jump (riemann_pair)
 # opt indices
-O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_RIEMANN, O_COUNT = range(7)
+O_DIM, O_KERNEL, O_DDT, O_LAMINAR, O_DDT_DF, O_RIEMANN, O_RIEMANN_JUMP, O_COUNT = range(8)
 # opt values
 K_WENDLAND, K_CUBIC = 0, 1
 D_NONE, D_MOLTENI, D_FOURTAKAS, D_FOURTAKAS_FULL = 0, 1, 2, 3
@@ -86,6 +89,7 @@ class PhysicsConfig:
     riemann: str = "none"               # Riemann-solver pressure term of fluid pairs (RIEMANNS)
     riemann_eta: float = 3.0            # the limiter's factor (Zhang, Hu & Adams 2017: 3)
     riemann_wall: str = "skip"          # a wall neighbour adds no U* jump, or cancels the row's (RIEMANN_WALLS)
+    riemann_jump: str = "plain"         # the U* jump as it is, or with its linear part removed (RIEMANN_JUMPS)
 
     @classmethod
     def field_names(cls):
@@ -174,6 +178,7 @@ def derive(cfg: PhysicsConfig, dim: int, dp: float, hswl: float) -> Constants:
     opt[O_DDT] = DIFFUSIONS.index(cfg.diffusion) if cfg.delta > 0 and cfg.riemann == "none" else D_NONE
     opt[O_LAMINAR] = 1 if cfg.laminar_nu > 0 else 0
     opt[O_RIEMANN] = RIEMANNS.index(cfg.riemann)
+    opt[O_RIEMANN_JUMP] = RIEMANN_JUMPS.index(cfg.riemann_jump) if cfg.riemann != "none" else 0
     opt[O_DDT_DF] = 1 if (cfg.diffusion_time == "dufort-frankel" and opt[O_DDT] != D_NONE) else 0
     cell = 2.0 * h if cfg.cell_size == "2h" else h
     return Constants(dim=dim, dp=dp, h=h, c0=c0, B=B, mass_fluid=mass, mass_bound=mass,

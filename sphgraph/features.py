@@ -189,7 +189,8 @@ class Features:
         from .errors import InputError
         s, ph, name = self.scene, self.scene.physics, compute_cls.name
         have = compute_cls.scene_features
-        for key, value, off in (("riemann", ph.riemann, "none"), ("diffusion_time", ph.diffusion_time, "leapfrog")):
+        for key, value, off in (("riemann", ph.riemann, "none"), ("riemann_jump", ph.riemann_jump, "plain"),
+                               ("diffusion_time", ph.diffusion_time, "leapfrog")):
             if value != off and key not in have:
                 raise InputError(f"{s.source}: physics.{key}: {value!r} runs with --backend numba-cpu "
                                  f"(or use {key} = \"{off}\"), got {name}")

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes
-from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS, RIEMANN_WALLS,
+from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS, RIEMANN_JUMPS, RIEMANN_WALLS,
                      SHIFTINGS, PhysicsConfig)
 from .errors import InputError
 from .ranges import CHOICES, describe, expected, finite, in_range, is_real
@@ -49,7 +49,7 @@ _ENTRY_KEYS = {
 _PHYS_CHOICES = {"kernel": KERNELS, "diffusion": DIFFUSIONS, "integrator": INTEGRATORS,
                  "cell_size": CELL_SIZES, "shifting": SHIFTINGS, "boundary": BOUNDARIES,
                  "diffusion_time": DIFFUSION_TIMES, "riemann": RIEMANNS,
-                 "riemann_wall": RIEMANN_WALLS}
+                 "riemann_wall": RIEMANN_WALLS, "riemann_jump": RIEMANN_JUMPS}
 _PHYS_BOUNDS = {  # name: (bound, strict) -> value > bound (strict) or >= bound
     "coefh": (0, True), "coefsound": (0, True), "gamma": (0, True), "rho0": (0, True),
     "visc_alpha": (0, False), "visc_bound_factor": (0, False), "laminar_nu": (0, False),
@@ -303,6 +303,13 @@ def _physics(c: _Checker, p, dim) -> PhysicsConfig:
     if cfg.riemann_wall != "skip" and cfg.riemann == "none":
         raise c.error("physics.riemann_wall", '"skip" with riemann = "none" (the option is what a wall does '
                       'to the Riemann term\'s pressure jump; set riemann = "zhang2017")', cfg.riemann_wall)
+    if cfg.riemann_jump != "plain" and cfg.riemann == "none":
+        raise c.error("physics.riemann_jump", '"plain" with riemann = "none" (the option is how the Riemann '
+                      'term\'s pressure jump is formed; set riemann = "zhang2017")', cfg.riemann_jump)
+    if cfg.riemann_jump != "plain" and cfg.boundary == "dbc":
+        raise c.error("physics.riemann_jump", '"plain" with boundary = "dbc" (the renormalised jump keeps '
+                      'mDBC walls against an impact; next to dynamic boundary particles it let a jet through '
+                      'the wall, docs/validation.md: set boundary = "mdbc")', cfg.riemann_jump)
     if cfg.diffusion_time != "leapfrog" and cfg.integrator != "verlet":
         raise c.error("physics.diffusion_time", '"leapfrog" with integrator = "symplectic" (the option '
                       'is how the Verlet step advances the diffusion term)', cfg.diffusion_time)

@@ -11,6 +11,7 @@ import numpy as np
 
 from .config import Constants
 from .particles import Particles
+from .physics.riemann_jump import RJ_SUMS
 
 
 @dataclass
@@ -53,12 +54,13 @@ class ForceBuffers:
     cancel: np.ndarray
     visc: np.ndarray
     ddk: np.ndarray = None    # K_a of the DuFort-Frankel diffusion step (n rows), else empty
+    jm: np.ndarray = None     # the renormalised jump's moments (12 x n, physics.riemann_jump), else 12 x 0
 
     @classmethod
-    def empty(cls, n, dim, dtype, ddk=False):
+    def empty(cls, n, dim, dtype, ddk=False, jm=False):
         return cls(ace=np.zeros((n, dim), dtype), ar=np.zeros(n, dtype), ddt=np.zeros(n, dtype),
                    cancel=np.zeros(n, np.int8), visc=np.zeros(n, dtype),
-                   ddk=np.zeros(n if ddk else 0, dtype))
+                   ddk=np.zeros(n if ddk else 0, dtype), jm=np.zeros((RJ_SUMS, n if jm else 0), dtype))
 
 
 PARTS = ("interior", "halo_1", "halo_2", "halo_3")  # fixed summation order (halo_3: the periodic images)

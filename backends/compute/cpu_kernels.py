@@ -20,6 +20,7 @@ from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, ri
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,  # noqa: E402
                                         predict_density, verlet_axis, verlet_density)
 from sphgraph.physics.kernels import grad_factor  # noqa: E402
+from sphgraph.physics.riemann_jump import jump_correction, jump_moments  # noqa: E402
 from sphgraph.particles import FIXED  # noqa: E402
 
 
@@ -191,6 +192,129 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
         visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
 
 
+@njit(parallel=True, fastmath=True, cache=True)
+def forces_riemann_rj(dpos, dvel, drho, dpress, dkind,
+           spos, svel, srho, spress, skind,
+           start, origin, inv_size, dims, axes, reach,
+           prm, opt, ace, ar, ddt, cancel, visc, jm):
+    """`forces_riemann`, and in the same pass the twelve moments of the renormalised jump
+    (`riemann_jump.jump_moments`, fluid sources only) into `jm` (12 x n), which `reduce_parts`
+    turns into the row's correction. A kernel of its own, so that `forces_riemann` is compiled
+    as it was."""
+    dim = opt[O_DIM]
+    kernel = opt[O_KERNEL]
+    laminar = opt[O_LAMINAR] != 0
+    support2 = prm[P_SUPPORT2]
+    mf = prm[P_MASS_F]
+    mb = prm[P_MASS_B]
+    nf = dims[0]
+    nm = dims[1]
+    ns = dims[2]
+    for i in prange(dpos.shape[0]):
+        lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
+            dpos[i, 0], dpos[i, 1], dpos[i, 2] if dim == 3 else 0.0, origin[0], origin[1], origin[2], inv_size,
+            nf, nm, ns, axes[0], axes[1], axes[2], reach)
+        axx = 0.0 * drho[i]
+        ayy = axx
+        azz = axx
+        arr = axx
+        dd = axx
+        cc = 0
+        vmax = axx
+        m00 = axx
+        m01 = axx
+        m02 = axx
+        m11 = axx
+        m12 = axx
+        m22 = axx
+        g0 = axx
+        g1 = axx
+        g2 = axx
+        s0 = axx
+        s1 = axx
+        s2 = axx
+        xa = dpos[i, 0]
+        ya = dpos[i, 1]
+        za = dpos[i, 2] if dim == 3 else 0.0
+        vxa = dvel[i, 0]
+        vya = dvel[i, 1]
+        vza = dvel[i, 2] if dim == 3 else 0.0
+        rho_a = drho[i]
+        inv_rho_a = 1.0 / rho_a
+        p_a = dpress[i]
+        a_fluid = dkind[i] == 0
+        if not empty:
+            for c2 in range(lo2, hi2 + 1):
+                for c1 in range(lo1, hi1 + 1):
+                    row = (c2 * nm + c1) * nf
+                    for j in range(start[row + lo0], start[row + hi0 + 1]):
+                        drx = xa - spos[j, 0]
+                        dry = ya - spos[j, 1]
+                        drz = (za - spos[j, 2]) if dim == 3 else 0.0
+                        r2 = drx * drx + dry * dry + drz * drz
+                        if r2 > support2 or r2 < 1e-18:
+                            continue
+                        b_bound = skind[j] != 0
+                        dvx = vxa - svel[j, 0]
+                        dvy = vya - svel[j, 1]
+                        dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
+                        if a_fluid:
+                            fx, fy, fz, fr, fd, fc, fv = riemann_pair(
+                                drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
+                                svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
+                                mb if b_bound else mf, b_bound, skind[j] == FIXED, prm, kernel, laminar)
+                            axx += fx
+                            ayy += fy
+                            azz += fz
+                            arr += fr
+                            dd += fd
+                            cc |= fc
+                            if not b_bound:
+                                j00, j01, j02, j11, j12, j22, jg0, jg1, jg2, js0, js1, js2 = jump_moments(
+                                    drx, dry, drz, r2, math.sqrt(r2), rho_a, srho[j], p_a, spress[j], mf, prm,
+                                    kernel)
+                                m00 += j00
+                                m01 += j01
+                                m02 += j02
+                                m11 += j11
+                                m12 += j12
+                                m22 += j22
+                                g0 += jg0
+                                g1 += jg1
+                                g2 += jg2
+                                s0 += js0
+                                s1 += js1
+                                s2 += js2
+                        elif not b_bound:
+                            fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
+                                                mf, prm, kernel)
+                            arr += fr
+                        else:
+                            continue
+                        if fv > vmax:
+                            vmax = fv
+        ace[i, 0] = axx
+        ace[i, 1] = ayy
+        if dim == 3:
+            ace[i, 2] = azz
+        ar[i] = arr
+        ddt[i] = dd
+        cancel[i] = cc
+        visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
+        jm[0, i] = m00
+        jm[1, i] = m01
+        jm[2, i] = m02
+        jm[3, i] = m11
+        jm[4, i] = m12
+        jm[5, i] = m22
+        jm[6, i] = g0
+        jm[7, i] = g1
+        jm[8, i] = g2
+        jm[9, i] = s0
+        jm[10, i] = s1
+        jm[11, i] = s2
+
+
 @njit(parallel=True, cache=True)
 def forces_df(dpos, dvel, drho, dpress, dkind,
            spos, svel, srho, spress, skind,
@@ -287,16 +411,28 @@ def pressure_into(rho, prm, out):
         out[i] = tait(rho[i], prm)
 
 
+@njit(inline="always", cache=True)
+def _psum(jms, c, i):
+    """Moment c of row i summed over the parts, in their order."""
+    s = 0.0 * jms[0][c, i]
+    for q in range(len(jms)):
+        s += jms[q][c, i]
+    return s
+
+
 @njit(parallel=True, cache=True)
-def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, ddks, dk):
+def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, ddks, dk, jms):
     """Sum partial buffers in their fixed order (interior, halo 1, halo 2).
 
     Fluid acceleration gets gravity; density diffusion is added unless any
     part cancelled it (DBC neighbour). Same result whatever order the parts
     were computed in. With `dk` as long as `ar` (the DuFort-Frankel step) the parts'
-    diffusion coefficients K_a are summed into it the same way (0 where cancelled).
+    diffusion coefficients K_a are summed into it the same way (0 where cancelled). With
+    `jms` n rows wide (12 x n each, the renormalised jump) the parts' moments are summed and
+    the row's correction (riemann_jump.jump_correction) added to its uncancelled jump.
     """
     df = dk.shape[0] == ar.shape[0] and ar.shape[0] > 0
+    rj = jms[0].shape[1] == ar.shape[0] and ar.shape[0] > 0
     nparts = len(aces)
     dim = ace.shape[1]
     for i in prange(ace.shape[0]):
@@ -315,6 +451,10 @@ def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, 
             cc |= cancels[k][i]
             if viscs[k][i] > v:
                 v = viscs[k][i]
+        if rj and cc == 0 and kind[i] == 0:
+            dd += jump_correction(_psum(jms, 0, i), _psum(jms, 1, i), _psum(jms, 2, i), _psum(jms, 3, i),
+                                  _psum(jms, 4, i), _psum(jms, 5, i), _psum(jms, 6, i), _psum(jms, 7, i),
+                                  _psum(jms, 8, i), _psum(jms, 9, i), _psum(jms, 10, i), _psum(jms, 11, i), dim)
         ar[i] = s + (dd if cc == 0 else 0.0 * dd)
         visc[i] = v
         if df:

@@ -5,9 +5,10 @@ import numba
 import numpy as np
 
 from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
-from sphgraph.config import O_DDT_DF, O_RIEMANN, P_RHO0
+from sphgraph.config import O_DDT_DF, O_RIEMANN, O_RIEMANN_JUMP, P_RHO0
 from sphgraph.particles import MOVING
 from sphgraph.registry import register
+from sphgraph.physics.riemann_jump import RJ_SUMS
 from sphgraph.state import ForceBuffers, PARTS
 
 from . import cpu_kernels as K
@@ -28,7 +29,8 @@ def _threads(n: int, rows_per_thread: int) -> None:
 @register("compute", "numba-cpu")
 class NumbaCPU(ComputeBackend):
     default_precision = "float64"
-    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time", "motion"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "riemann_jump", "diffusion_time",
+                                "motion"})
 
     def device_name(self) -> str:
         return f"cpu ({numba.config.NUMBA_NUM_THREADS} threads)"
@@ -144,15 +146,17 @@ class NumbaCPU(ComputeBackend):
         p = state.particles
         buf = state.parts.get(part)
         df = bool(state.opt[O_DDT_DF])
-        if buf is None or buf.ar.shape[0] != p.n or (df and buf.ddk.shape[0] != p.n):
-            buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype, ddk=df)
+        rj = bool(state.opt[O_RIEMANN] and state.opt[O_RIEMANN_JUMP])
+        if buf is None or buf.ar.shape[0] != p.n or (df and buf.ddk.shape[0] != p.n) or \
+                (rj and buf.jm.shape[1] != p.n):
+            buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype, ddk=df, jm=rj)
         if part == "interior":
             src = (p.pos, p.vel, p.rho, state.press, p.kind)
             grid = state.cells
         else:
             halo = state.halos.get(int(part[-1]))
             if halo is None or halo.cells is None:  # empty halo: contributes nothing
-                for a in (buf.ace, buf.ar, buf.ddt, buf.visc, buf.ddk):
+                for a in (buf.ace, buf.ar, buf.ddt, buf.visc, buf.ddk, buf.jm):
                     a[...] = 0
                 buf.cancel[...] = 0
                 return
@@ -163,6 +167,8 @@ class NumbaCPU(ComputeBackend):
                 state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
         if df:
             K.forces_df(*args, buf.ddk)
+        elif rj:
+            K.forces_riemann_rj(*args, buf.jm)
         elif state.opt[O_RIEMANN]:
             K.forces_riemann(*args)
         else:
@@ -178,7 +184,8 @@ class NumbaCPU(ComputeBackend):
                        tuple(b.ddt for b in bufs), tuple(b.cancel for b in bufs),
                        tuple(b.visc for b in bufs), state.particles.kind,
                        state.consts.gravity.astype(state.dtype), state.ace, state.ar, state.visc,
-                       tuple(self._ddk(b, state) for b in bufs), state.ddk)
+                       tuple(self._ddk(b, state) for b in bufs), state.ddk,
+                       tuple(self._jm(b, state) for b in bufs))
         state.reduced_stage = (state.step, stage)
 
     @staticmethod
@@ -189,6 +196,15 @@ class NumbaCPU(ComputeBackend):
         if buf.ddk is None or buf.ddk.shape[0] != n:
             buf.ddk = np.zeros(n, state.dtype)
         return buf.ddk
+
+    @staticmethod
+    def _jm(buf, state):
+        """A part's moments of the renormalised jump (12 x n; 12 x 0 without it); a user
+        task's buffer adds none, so zeros."""
+        n = state.particles.n if (state.opt[O_RIEMANN] and state.opt[O_RIEMANN_JUMP]) else 0
+        if buf.jm is None or buf.jm.shape[1] != n:
+            buf.jm = np.zeros((RJ_SUMS, n), state.dtype)
+        return buf.jm
 
     def dt_local(self, state) -> float:
         _threads(state.particles.n, ROWS_PER_THREAD_LIGHT)
