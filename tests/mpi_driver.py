@@ -7,6 +7,8 @@ Checks (rank 0 prints one JSON line per check, `{"check": ..., "ok": ..., ...}`)
                       positions (by id) with a single-rank run done here (comm single)
   mdbc2d              the 2D dam break with `boundary = "mdbc-noslip"` (bulk-synchronous, push 2 m/s):
                       the mDBC exchange under MPI against the single-rank run, to TOL
+  rjump2d             the same with mDBC walls and the renormalised Riemann jump (Symplectic,
+                      riemann_jump = "renormalised"): its per-part moments under MPI, to TOL
   mdbc-motion2d       mDBC on a moving body (tests/test_mdbc_motion.py's carried tank, 50 steps)
                       against the single-rank run, to TOL
   mdbc-noslip-motion2d  the same with no-slip walls and a laminar viscosity
@@ -86,14 +88,17 @@ def check_equiv(kind, push=0.0):
             "particles": int(len(a["id"])), "max_abs_err": err, "rel_err": err / span, "ids": bad or "ok"}
 
 
-def check_mdbc(steps=60):
+RJUMP = {"boundary": "mdbc", "integrator": "symplectic", "riemann": "zhang2017", "riemann_jump": "renormalised"}
+
+
+def check_mdbc(steps=60, name="mdbc2d", physics=None):
     from mpi4py import MPI
 
     from sphgraph import Scene
     comm = MPI.COMM_WORLD
     sc = scene("2d")
     d = sc.to_dict()
-    d["physics"] = dict(d.get("physics", {}), boundary="mdbc-noslip")
+    d["physics"] = dict(d.get("physics", {}), **(physics or {"boundary": "mdbc-noslip"}))
     sc = Scene.from_dict(d)
     sim, a, bad = run_sim(sc, "mpi", steps, schedule="bulk-synchronous", push=2.0)
     if comm.rank != 0:
@@ -104,7 +109,7 @@ def check_mdbc(steps=60):
     err = float(np.abs(a["position"] - ref["position"]).max()) if same else np.inf
     rho = float(np.abs(a["density"] / ref["density"] - 1).max()) if same else np.inf
     ok = bad is None and np.array_equal(a["id"], ref["id"]) and err <= TOL * span and rho <= TOL
-    return {"check": "mdbc2d", "ok": bool(ok), "ranks": comm.size, "steps": steps, "rel_err": err / span,
+    return {"check": name, "ok": bool(ok), "ranks": comm.size, "steps": steps, "rel_err": err / span,
             "density_rel_err": rho, "ids": bad or "ok"}
 
 
@@ -286,6 +291,7 @@ def check_cuda_mdbc():
 CHECKS = {"equiv2d": lambda: check_equiv("2d"), "equiv3d": lambda: check_equiv("3d"),
           "cuda-ipc": check_cuda_ipc, "cuda-mdbc": check_cuda_mdbc,
           "equiv2d-migrating": lambda: check_equiv("2d", 2.0), "mdbc2d": check_mdbc, "mdbc-motion2d": check_mdbc_motion,
+          "rjump2d": lambda: check_mdbc(name="rjump2d", physics=RJUMP),
           "mdbc-noslip-motion2d": lambda: check_mdbc_motion(noslip=True),
           "schedules": check_schedules, "conformance": check_conformance}
 

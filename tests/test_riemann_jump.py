@@ -152,3 +152,13 @@ def test_the_renormalised_jump_holds_the_jet_that_passes_an_mdbc_wall():
     renorm = penetration_map([20.0], ["mdbc-4", "mdbc-3"], dp=0.02, physics=dict(riemann, riemann_jump="renormalised"))
     assert all(r["through"] > 0 for r in plain)
     assert [(r["through"], r["verdict"]) for r in renorm] == [(0, "stable"), (0, "stable")]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("n", [2, 3])
+def test_mpi_ranks_match_one_rank(n):
+    """Under `mpiexec -n 2/3` (tests/mpi_driver.py's rjump2d: the 2D dam break, 60 steps)
+    against the single-rank run, to 1e-9 of the domain."""
+    from test_multirank import run_driver
+    r = run_driver(n, ["rjump2d"])
+    assert r["rjump2d"]["ranks"] == n and r["rjump2d"]["rel_err"] <= 1e-9
