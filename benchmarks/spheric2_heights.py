@@ -34,6 +34,12 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
                                                      "riemann_wall": "cancel"}),
         "zhang-mdbc4-cancel": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3,
                                                                   "riemann_wall": "cancel"}),
+        # the walls adding no jump, every fluid row's jump without its linear part
+        "zhang-mdbc4-renorm": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3,
+                                                                  "riemann_jump": "renormalised"}),
+        "zhang-noslip4-renorm": ({"boundary": "mdbc-noslip", "layers": 4},
+                                 {"riemann": "zhang2017", "riemann_eta": 0.3, "riemann_jump": "renormalised",
+                                  "laminar_nu": 1e-6}),
         # bed friction: no-slip mDBC walls and water's laminar viscosity (1.0e-6 m^2/s, not fitted)
         "noslip4": ({"boundary": "mdbc-noslip", "layers": 4}, {"laminar_nu": 1e-6}),
         "zhang-noslip4-cancel": ({"boundary": "mdbc-noslip", "layers": 4},

@@ -28,7 +28,7 @@ def examples_dir():
 # 2026-12-04, summed over each file's tests) lets the two workers end together.
 LONGEST_FIRST = ("test_cuda_mdbc_ranks.py", "test_cuda_multirank.py", "test_waves.py", "test_cuda_backend.py",
                  "test_probe_sums.py", "test_compute_conformance.py", "test_multirank.py", "test_cuda_dufort.py",
-                 "test_cuda_riemann.py", "test_physics.py", "test_examples_baseline.py", "test_cuda_mdbc.py")
+                 "test_cuda_riemann.py", "test_cuda_riemann_jump.py", "test_physics.py", "test_examples_baseline.py", "test_cuda_mdbc.py")
 
 
 def pytest_collection_modifyitems(config, items):

@@ -13,6 +13,7 @@ from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from . import cuda_riemann as CR
+from . import cuda_rjump as CJ
 
 TRIM_OFF = 1e30          # tpad that keeps every row whole (finite: fastmath assumes no inf)
 
@@ -26,8 +27,10 @@ class CudaForceDispatch:
         n, dim = dv.n, dv.dim
         halos_exist = any(h is not None and h.n for h in state.halos.values())
         # one part only: the interior, written reduced -- not where periodic images come after
-        # it (forces_images), which at a run's first stage have not been made yet
-        final = part == "interior" and not halos_exist and state.nranks == 1 and not state.extra.get("images")
+        # it (forces_images), which at a run's first stage have not been made yet, nor with the
+        # renormalised jump, whose correction is made where the parts are summed (cuda_rjump)
+        final = part == "interior" and not halos_exist and state.nranks == 1 and not state.extra.get("images") \
+            and not CJ.enabled(state)
         A = dv.A()
         if part == "interior":
             g = dv.grid
@@ -53,13 +56,15 @@ class CudaForceDispatch:
             buf = dv.part_buffer(part, max(n, 1))
             out = (buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
         dfa = CD.ddk_out(self, state, dv, part, final)      # K_a out (the DuFort-Frankel step), else ()
+        jma = CJ.jm_out(self, state, dv, part, final)       # the jump's moments (cuda_rjump), else ()
         gvec = np.zeros(3)
         gvec[:dim] = state.consts.gravity
         ft = dv.dtype.type
         if n and part == "interior":
             g = dv.grid
             nf, FB = dv.nf, CK.FORCE_BLOCK
-            built = (CD.force_kernels if dfa else CR.force_kernels if CR.enabled(state) else CK.force_kernels)(
+            built = (CD.force_kernels if dfa else CJ.force_kernels if jma else
+                     CR.force_kernels if CR.enabled(state) else CK.force_kernels)(
                 dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]))
             kf = self._on(state, built)
             if built.relative:
@@ -77,7 +82,7 @@ class CudaForceDispatch:
                             1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]))
                 if nf:
                     kf.k_forces_f[CK.blocks(nf, FB), FB](A["pos4"], A["vel4"], A["kind"], 0, nf, start, int(g["ncells"]),
-                                                         *rel_args, *out, *dfa)
+                                                         *rel_args, *out, *dfa, *jma)
                 if n > nf:
                     kf.k_forces_b[CK.blocks(n - nf, FB), FB](A["pos4"], A["vel4"], A["kind"], nf, n, start,
                                                              int(g["ncells"]), *rel_args, *out)
@@ -96,6 +101,7 @@ class CudaForceDispatch:
                         *out)
         elif n:
             kh = (self._on(state, CD.build(dv.dtype)).k_forces_df if dfa else
+                  self._on(state, CJ.build(dv.dtype)).k_forces_rj if jma else
                   self._on(state, CR.build(dv.dtype)).k_forces if CR.enabled(state) else k.k_forces)
             kh[CK.blocks(n, CK.FORCE_BLOCK), CK.FORCE_BLOCK](
                 A["px"], A["py"], A["pz"], A["rx"], A["ry"], A["rz"], A["vx"], A["vy"], A["vz"],
@@ -103,7 +109,7 @@ class CudaForceDispatch:
                 start, float(origin[0]), float(origin[1]), float(origin[2]), float(inv),
                 int(dims[0]), int(dims[1]), int(dims[2]), int(axes[0]), int(axes[1]), int(axes[2]), int(reach),
                 dv.prm_d(state), dim, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR]),
-                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out, *dfa)
+                1 if final else 0, ft(gvec[0]), ft(gvec[1]), ft(gvec[2]), *out, *dfa, *jma)
         dv.final = final
         self._sync()
 
@@ -118,6 +124,7 @@ class CudaForceDispatch:
         if dv.halo_ranges and dv.n:
             self._reduce_ranged(state, dv)
             CD.reduce(self, state, dv, True)
+            CJ.reduce(self, state, dv, True)      # after k_reduce_ranged wrote ar
             self._sync()
             return
         bufs = [dv.parts[p] for p in PARTS if p in dv.parts]
@@ -135,6 +142,7 @@ class CudaForceDispatch:
             k.k_reduce[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], ft(gvec[0]), ft(gvec[1]),
                                                  ft(gvec[2]), *flat, A["ax"], A["ay"], A["az"], A["ar"])
         CD.reduce(self, state, dv, False)
+        CJ.reduce(self, state, dv, False)         # after k_reduce wrote ar
         self._sync()
 
     def _reduce_ranged(self, state, dv) -> None:

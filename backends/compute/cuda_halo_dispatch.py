@@ -14,6 +14,7 @@ from . import cuda_halo as CH
 from . import cuda_halo_kernels as HK
 from . import cuda_kernels as CK
 from . import cuda_riemann as CR
+from . import cuda_rjump as CJ
 from .cuda_force_dispatch import TRIM_OFF
 from .cuda_images import DeviceImages
 from .cuda_memory import VEC, count_bytes, dev_array, layout, split
@@ -142,12 +143,13 @@ class CudaHaloDispatch:
                 int(axes[0]), int(axes[1]), int(axes[2]), ft(gvec[0]), ft(gvec[1]), ft(gvec[2]),
                 buf["x"], buf["y"], buf["z"], buf["ar"], buf["ddt"], buf["cancel"], A["visc"])
         dfa = CD.ddk_out(self, state, dv, part, False)      # K_a out (the DuFort-Frankel step), else ()
-        kf = self._on(state, (CD.halo_force_kernels if dfa else CR.halo_force_kernels if CR.enabled(state)
-                              else HK.force_kernels)(
+        jma = CJ.jm_out(self, state, dv, part, False)       # the jump's moments (cuda_rjump), else ()
+        kf = self._on(state, (CD.halo_force_kernels if dfa else CJ.halo_force_kernels if jma else
+                              CR.halo_force_kernels if CR.enabled(state) else HK.force_kernels)(
             dv.dtype, state.prm, int(state.opt[O_KERNEL]), int(state.opt[O_DDT]), int(state.opt[O_LAMINAR])))
         FB = CK.FORCE_BLOCK
         if fb:
-            kf.k_halo_fv[CK.blocks(fb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro, *args, *dfa)
+            kf.k_halo_fv[CK.blocks(fb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro, *args, *dfa, *jma)
         if bb:
             kf.k_halo_bv[CK.blocks(bb, FB), FB](A["pos4"], A["vel4"], A["pick8"], ro + 2, *args)
         dv.final = False

@@ -1,14 +1,16 @@
 """Variants of the force kernels for the optional terms (cuda_riemann: the Riemann pressure
-term; cuda_dufort: the DuFort-Frankel K_a), made from the code of the production kernels
-(cuda_forces: k_forces_fv, k_forces; cuda_halo_kernels: k_halo_fv) so that the neighbour
-loops, sums and stores are written once. The production kernels are compiled from their
-own code as they are; a variant is a copy of it that differs in one of two ways:
+term; cuda_dufort: the DuFort-Frankel K_a; cuda_rjump: the renormalised Riemann jump), made
+from the code of the production kernels (cuda_forces: k_forces_fv, k_forces;
+cuda_halo_kernels: k_halo_fv) so that the neighbour loops, sums and stores are written once.
+The production kernels are compiled from their own code as they are; a variant is a copy of
+it that differs in one of two ways:
 
 * `with_globals(f, **subs)`: the copy's global names rebound, e.g. `fluid_pair` to another
   pair function of the same signature (the Riemann term);
-* `with_sum(f, pair, store, **subs)`: the copy carries one more sum a row, `kk`, beside the
-  others, fed by a pair function that returns one value more than `fluid_pair`, and the
-  kernel writes it through `store` into one more array argument (K_a; see `with_sum`).
+* `with_sum(f, pair, store, nsum, **subs)`: the copy carries `nsum` more sums a row (`kk`,
+  ...) beside the others, fed by a pair function that returns `nsum` values more than
+  `fluid_pair`, and the kernel writes them through `store` into one more array argument
+  (K_a: one sum; cuda_rjump's moments of the renormalised jump: twelve; see `with_sum`).
 
 `ForceVariant` compiles a variant's kernels as cuda_kernels.force_kernels /
 cuda_halo_kernels.force_kernels compile the production ones (cuda_forces.compile_forces:
@@ -45,7 +47,7 @@ def with_globals(f, **subs):
     return njit(inline="always")(fn) if isinstance(f, Dispatcher) else fn
 
 
-# ------------------------------------------------------------------------------- one more sum
+# ----------------------------------------------------------------------------- more sums
 # The production kernels' sums of a fluid row are the locals (axx, ayy, azz, arr, dd, cc,
 # vmax), in that order wherever they are passed, returned or unpacked; the pair call is
 # `fx, fy, fz, fr, fd, fc, fv = fluid_pair(...)`, the cancel is summed by `cc |= fc`, the
@@ -64,25 +66,36 @@ def _is_name(node, name) -> bool:
     return isinstance(node, ast.Name) and node.id == name
 
 
+def sum_names(nsum) -> tuple:
+    """The names of `with_sum`'s `nsum` sums a row (kk, kk1, kk2, ...) and of the pair's
+    values that feed them (fk, fk1, ...): with one sum, kk and fk as ever."""
+    return (tuple("kk" if k == 0 else f"kk{k}" for k in range(nsum)),
+            tuple("fk" if k == 0 else f"fk{k}" for k in range(nsum)))
+
+
 class _AddSum(ast.NodeTransformer):
     """The edits of `with_sum` on one function's tree, counted (`n`) so that a production
     kernel whose code no longer has the expected shape fails at build time, not in a result."""
 
-    def __init__(self, pair_name, store_name, kernel):
+    def __init__(self, pair_name, store_name, kernel, nsum):
         self.pair_name = pair_name
         self.store_name = store_name
         self.kernel = kernel
+        self.kk, self.fk = sum_names(nsum)
         self.n = dict.fromkeys(("args", "return", "pair", "add", "init", "store"), 0)
+
+    def _names(self, ctx):
+        return [ast.Name(k, ctx()) for k in self.kk]
 
     def visit_FunctionDef(self, node):
         node.decorator_list = []
         args = node.args.args
         names = [a.arg for a in args]
-        for new in ("kk", "fk", "ddk_"):
+        for new in self.kk + self.fk + ("ddk_",):
             if new in names or any(_is_name(n, new) for n in ast.walk(node)):
                 raise ValueError(f"with_sum: {node.name} already uses the name {new!r}")
         if names[-2:] == list(_SUMS_END):
-            args.append(ast.arg("kk"))
+            args.extend(ast.arg(k) for k in self.kk)
             self.n["args"] += 1
         self.generic_visit(node)
         if self.kernel:
@@ -90,7 +103,7 @@ class _AddSum(ast.NodeTransformer):
             final = ast.Name("final", ast.Load()) if "final" in names else ast.Constant(False)
             store = ast.Expr(ast.Call(ast.Name(self.store_name, ast.Load()),
                                       [ast.Name("i", ast.Load()), final, ast.Name("cc", ast.Load()),
-                                       ast.Name("kk", ast.Load()), ast.Name("ddk_", ast.Load())], []))
+                                       *self._names(ast.Load), ast.Name("ddk_", ast.Load())], []))
             body = []
             for s in node.body:   # the row's stores are done where the viscous maximum is scaled
                 if isinstance(s, ast.Assign) and _is_name(s.targets[0], "vmax") and not _is_name(s.value, "zero"):
@@ -102,20 +115,20 @@ class _AddSum(ast.NodeTransformer):
 
     def visit_Return(self, node):
         self.generic_visit(node)
-        if isinstance(node.value, ast.Tuple) and _is_name(node.value.elts[-1], "kk"):
+        if isinstance(node.value, ast.Tuple) and _ends(node.value.elts, self.kk):
             self.n["return"] += 1
         return node
 
     def visit_Tuple(self, node):
         self.generic_visit(node)
         if _ends(node.elts, _SUMS_END):
-            node.elts.append(ast.Name("kk", type(node.ctx)()))
+            node.elts.extend(self._names(type(node.ctx)))
         return node
 
     def visit_Call(self, node):
         self.generic_visit(node)
         if _ends(node.args, _SUMS_END):
-            node.args.append(ast.Name("kk", ast.Load()))
+            node.args.extend(self._names(ast.Load))
         return node
 
     def visit_Assign(self, node):
@@ -124,42 +137,47 @@ class _AddSum(ast.NodeTransformer):
         v = node.value
         if isinstance(t, ast.Tuple) and _ends(t.elts, _PAIR_OUT_END) and isinstance(v, ast.Call) \
                 and _is_name(v.func, "fluid_pair"):
-            t.elts.append(ast.Name("fk", ast.Store()))
+            t.elts.extend(ast.Name(f, ast.Store()) for f in self.fk)
             v.func = ast.Name(self.pair_name, ast.Load())
             self.n["pair"] += 1
         if _is_name(t, "vmax") and _is_name(v, "zero"):
             self.n["init"] += 1
-            return [node, ast.Assign([ast.Name("kk", ast.Store())], ast.Name("zero", ast.Load()))]
+            return [node] + [ast.Assign([ast.Name(k, ast.Store())], ast.Name("zero", ast.Load())) for k in self.kk]
         return node
 
     def visit_AugAssign(self, node):
         if _is_name(node.target, "cc") and isinstance(node.op, ast.BitOr) and _is_name(node.value, "fc"):
             self.n["add"] += 1
-            return [node, ast.AugAssign(ast.Name("kk", ast.Store()), ast.Add(), ast.Name("fk", ast.Load()))]
+            return [node] + [ast.AugAssign(ast.Name(k, ast.Store()), ast.Add(), ast.Name(f, ast.Load()))
+                             for k, f in zip(self.kk, self.fk)]
         return node
 
 
-def with_sum(f, pair, store=None, **subs):
+def with_sum(f, pair, store=None, nsum=1, **subs):
     """A copy of the production kernel or device function `f` (cuda_forces' `_fv_pair`,
-    `_fv_part`, `k_forces_fv`, `k_forces`; cuda_halo_kernels' `k_halo_fv`) that carries one more
-    sum a row, `kk`, beside `vmax`, every other line as it is:
+    `_fv_part`, `k_forces_fv`, `k_forces`; cuda_halo_kernels' `k_halo_fv`) that carries `nsum`
+    more sums a row, `kk` (and `kk1`, `kk2`, ... with nsum > 1: `sum_names`), beside `vmax`,
+    every other line as it is:
 
-    * the pair call `fx, .., fv = fluid_pair(...)` becomes `fx, .., fv, fk = pair(...)` (`pair`:
-      fluid_pair's arguments, its results and one more), and `kk += fk` follows `cc |= fc`;
-    * wherever the sums are passed, returned or unpacked (`..., cc, vmax`), `kk` follows;
-      `kk = zero` follows `vmax = zero`;
+    * the pair call `fx, .., fv = fluid_pair(...)` becomes `fx, .., fv, fk, .. = pair(...)`
+      (`pair`: fluid_pair's arguments, its results and `nsum` more), and `kk += fk`, ...
+      follow `cc |= fc`;
+    * wherever the sums are passed, returned or unpacked (`..., cc, vmax`), `kk, ..` follow;
+      `kk = zero`, ... follow `vmax = zero`;
     * a kernel (`store` given) takes one more array argument, `ddk_`, last, and calls
-      `store(i, final, cc, kk, ddk_)` after the row's stores (`final`: False where the kernel
-      has no such argument, as k_halo_fv, whose sums are always a part's).
+      `store(i, final, cc, kk, .., ddk_)` after the row's stores (`final`: False where the
+      kernel has no such argument, as k_halo_fv, whose sums are always a part's).
 
-    `subs` rebinds global names of the copy as `with_globals` (e.g. `_fv_part` to its own copy
-    with the sum). Source line numbers are the production function's. Raises ValueError where
-    `f`'s code has not the shape these edits key on."""
+    The sums are separate scalars, not an array: a per-thread local array would live in
+    local (off-chip) memory, the scalars in registers. `subs` rebinds global names of the
+    copy as `with_globals` (e.g. `_fv_part` to its own copy with the sums). Source line
+    numbers are the production function's. Raises ValueError where `f`'s code has not the
+    shape these edits key on."""
     py = _py(f)
     lines, first = inspect.getsourcelines(py)
     tree = ast.parse(textwrap.dedent("".join(lines)))
     ast.increment_lineno(tree, first - 1)
-    edit = _AddSum(_py(pair).__name__, _py(store).__name__ if store is not None else "", store is not None)
+    edit = _AddSum(_py(pair).__name__, _py(store).__name__ if store is not None else "", store is not None, nsum)
     tree = ast.fix_missing_locations(edit.visit(tree))
     n = edit.n
     device = not edit.kernel

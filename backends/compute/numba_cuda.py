@@ -76,7 +76,8 @@ class NumbaCUDA(CudaLanes, CudaUpload, CudaCells, CudaRows, CudaHaloDispatch, Cu
 
     default_precision = "float32"
     device_resident = True
-    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "diffusion_time", "motion"})
+    scene_features = frozenset({"shifting", "mdbc", "mdbc-ranks", "riemann", "riemann_jump", "diffusion_time",
+                                "motion"})
 
     def __init__(self):
         self.sync_tasks = os.environ.get("SPHGRAPH_CUDA_SYNC", "0") == "1"  # profile: time kernels per task
