@@ -113,10 +113,13 @@ def forces(dpos, dvel, drho, dpress, dkind,
 def forces_riemann(dpos, dvel, drho, dpress, dkind,
            spos, svel, srho, spress, skind,
            start, origin, inv_size, dims, axes, reach,
-           prm, opt, ace, ar, ddt, cancel, visc):
+           prm, opt, ace, ar, ddt, cancel, visc, jm):
     """`forces` with the Riemann-solver pressure term for fluid destinations
     (`[physics] riemann`, `interact.riemann_pair`): the same traversal and outputs, the U*
-    pressure jump as the diffusion term (ddt; with riemann_wall = "cancel" a wall neighbour cancels it). A kernel of
+    pressure jump as the diffusion term (ddt; with riemann_wall = "cancel" a wall neighbour
+    cancels it). With `jm` n rows wide (12 x n: `riemann_jump = "renormalised"`) the pass also
+    sums the twelve moments of the renormalised jump (`riemann_jump.jump_moments`, fluid sources
+    only), which `reduce_parts` turns into the row's correction; 12 x 0 skips them. A kernel of
     its own, so that `forces` (the default path) is compiled as it was."""
     dim = opt[O_DIM]
     kernel = opt[O_KERNEL]
@@ -127,89 +130,7 @@ def forces_riemann(dpos, dvel, drho, dpress, dkind,
     nf = dims[0]
     nm = dims[1]
     ns = dims[2]
-    for i in prange(dpos.shape[0]):
-        lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
-            dpos[i, 0], dpos[i, 1], dpos[i, 2] if dim == 3 else 0.0, origin[0], origin[1], origin[2], inv_size,
-            nf, nm, ns, axes[0], axes[1], axes[2], reach)
-        axx = 0.0 * drho[i]
-        ayy = axx
-        azz = axx
-        arr = axx
-        dd = axx
-        cc = 0
-        vmax = axx
-        xa = dpos[i, 0]
-        ya = dpos[i, 1]
-        za = dpos[i, 2] if dim == 3 else 0.0
-        vxa = dvel[i, 0]
-        vya = dvel[i, 1]
-        vza = dvel[i, 2] if dim == 3 else 0.0
-        rho_a = drho[i]
-        inv_rho_a = 1.0 / rho_a
-        p_a = dpress[i]
-        a_fluid = dkind[i] == 0
-        if not empty:
-            for c2 in range(lo2, hi2 + 1):
-                for c1 in range(lo1, hi1 + 1):
-                    row = (c2 * nm + c1) * nf
-                    for j in range(start[row + lo0], start[row + hi0 + 1]):
-                        drx = xa - spos[j, 0]
-                        dry = ya - spos[j, 1]
-                        drz = (za - spos[j, 2]) if dim == 3 else 0.0
-                        r2 = drx * drx + dry * dry + drz * drz
-                        if r2 > support2 or r2 < 1e-18:
-                            continue
-                        b_bound = skind[j] != 0
-                        dvx = vxa - svel[j, 0]
-                        dvy = vya - svel[j, 1]
-                        dvz = (vza - svel[j, 2]) if dim == 3 else 0.0
-                        if a_fluid:
-                            fx, fy, fz, fr, fd, fc, fv = riemann_pair(
-                                drx, dry, drz, r2, dvx, dvy, dvz, svel[j, 0], svel[j, 1],
-                                svel[j, 2] if dim == 3 else 0.0, rho_a, inv_rho_a, srho[j], p_a, spress[j],
-                                mb if b_bound else mf, b_bound, skind[j] == FIXED, prm, kernel, laminar)
-                            axx += fx
-                            ayy += fy
-                            azz += fz
-                            arr += fr
-                            dd += fd
-                            cc |= fc
-                        elif not b_bound:
-                            fr, fv = bound_pair(drx, dry, drz, r2, dvx, dvy, dvz, rho_a, srho[j],
-                                                mf, prm, kernel)
-                            arr += fr
-                        else:
-                            continue
-                        if fv > vmax:
-                            vmax = fv
-        ace[i, 0] = axx
-        ace[i, 1] = ayy
-        if dim == 3:
-            ace[i, 2] = azz
-        ar[i] = arr
-        ddt[i] = dd
-        cancel[i] = cc
-        visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
-
-
-@njit(parallel=True, fastmath=True, cache=True)
-def forces_riemann_rj(dpos, dvel, drho, dpress, dkind,
-           spos, svel, srho, spress, skind,
-           start, origin, inv_size, dims, axes, reach,
-           prm, opt, ace, ar, ddt, cancel, visc, jm):
-    """`forces_riemann`, and in the same pass the twelve moments of the renormalised jump
-    (`riemann_jump.jump_moments`, fluid sources only) into `jm` (12 x n), which `reduce_parts`
-    turns into the row's correction. A kernel of its own, so that `forces_riemann` is compiled
-    as it was."""
-    dim = opt[O_DIM]
-    kernel = opt[O_KERNEL]
-    laminar = opt[O_LAMINAR] != 0
-    support2 = prm[P_SUPPORT2]
-    mf = prm[P_MASS_F]
-    mb = prm[P_MASS_B]
-    nf = dims[0]
-    nm = dims[1]
-    ns = dims[2]
+    rj = jm.shape[1] == dpos.shape[0] and dpos.shape[0] > 0
     for i in prange(dpos.shape[0]):
         lo0, hi0, lo1, hi1, lo2, hi2, empty = cell_window(
             dpos[i, 0], dpos[i, 1], dpos[i, 2] if dim == 3 else 0.0, origin[0], origin[1], origin[2], inv_size,
@@ -269,7 +190,7 @@ def forces_riemann_rj(dpos, dvel, drho, dpress, dkind,
                             arr += fr
                             dd += fd
                             cc |= fc
-                            if not b_bound:
+                            if rj and not b_bound:
                                 j00, j01, j02, j11, j12, j22, jg0, jg1, jg2, js0, js1, js2 = jump_moments(
                                     drx, dry, drz, r2, math.sqrt(r2), rho_a, srho[j], p_a, spress[j], mf, prm,
                                     kernel)
@@ -301,18 +222,19 @@ def forces_riemann_rj(dpos, dvel, drho, dpress, dkind,
         ddt[i] = dd
         cancel[i] = cc
         visc[i] = prm[P_H] * vmax         # the pair terms come without h (fluid_pair)
-        jm[0, i] = m00
-        jm[1, i] = m01
-        jm[2, i] = m02
-        jm[3, i] = m11
-        jm[4, i] = m12
-        jm[5, i] = m22
-        jm[6, i] = g0
-        jm[7, i] = g1
-        jm[8, i] = g2
-        jm[9, i] = s0
-        jm[10, i] = s1
-        jm[11, i] = s2
+        if rj:
+            jm[0, i] = m00
+            jm[1, i] = m01
+            jm[2, i] = m02
+            jm[3, i] = m11
+            jm[4, i] = m12
+            jm[5, i] = m22
+            jm[6, i] = g0
+            jm[7, i] = g1
+            jm[8, i] = g2
+            jm[9, i] = s0
+            jm[10, i] = s1
+            jm[11, i] = s2
 
 
 @njit(parallel=True, cache=True)

@@ -167,10 +167,8 @@ class NumbaCPU(ComputeBackend):
                 state.prm, state.opt, buf.ace, buf.ar, buf.ddt, buf.cancel, buf.visc)
         if df:
             K.forces_df(*args, buf.ddk)
-        elif rj:
-            K.forces_riemann_rj(*args, buf.jm)
         elif state.opt[O_RIEMANN]:
-            K.forces_riemann(*args)
+            K.forces_riemann(*args, buf.jm)       # 12 x 0 without the renormalised jump
         else:
             K.forces(*args)
 
