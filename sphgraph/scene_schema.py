@@ -19,8 +19,8 @@ import numpy as np
 
 from . import geometry as geo
 from . import shapes
-from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS, RIEMANN_JUMPS, RIEMANN_WALLS,
-                     SHIFTINGS, PhysicsConfig)
+from .config import (BOUNDARIES, CELL_SIZES, DIFFUSION_TIMES, DIFFUSIONS, INTEGRATORS, KERNELS, RIEMANNS,
+                     RIEMANN_JUMPS, RIEMANN_WALLS, SHIFTINGS, PhysicsConfig)
 from .errors import InputError
 from .ranges import CHOICES, describe, expected, finite, in_range, is_real
 

@@ -139,11 +139,15 @@ def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-
 
 
 # --------------------------------------------------------------------------- helpers
-def scene_for(case: Case, dp: float, overrides: dict, **top):
-    """The case's scene at `dp` with physics overrides (and top-level keys, e.g. end_time)."""
+def scene_for(case: Case, dp: float, overrides: dict, boundary=None, **top):
+    """The case's scene at `dp` with physics overrides (and top-level keys, e.g. end_time);
+    `boundary` (the case's wall treatment parameter) is set in the scene's physics before it is
+    validated, so that options that need mDBC walls pass the scene's checks."""
     from ..scene import Scene
     d = copy.deepcopy(case.scene)
     d["dp"] = dp
+    if boundary is not None and boundary != "dbc":
+        d.setdefault("physics", {})["boundary"] = boundary
     layers = top.pop("layers", None)
     if layers is not None:   # wall thickness override (e.g. mDBC wants the kernel's support)
         for b in d.get("boundary", []):
@@ -203,7 +207,7 @@ def run_surge_front(case, dp, prm, backend, precision, overrides):
     a = float(prm["a"])
     T0, T1 = prm["window"]
     scale = math.sqrt(2 * G / a)
-    scene = scene_for(case, dp, overrides, layers=prm.get("layers"))
+    scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), layers=prm.get("layers"))
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     Ts, Zs, Hs = [0.0], [1.0], [2.0]
     T_end = float(prm.get("T_end", T1 + 0.1))
@@ -252,7 +256,7 @@ def run_hydrostatic(case, dp, prm, backend, precision, overrides):
     """Still water: pressure profile against rho g (z_s - z), and the force on the tank against
     the fluid's weight, averaged over [t_avg0, end]."""
     from ..probes import ProbeSampler
-    scene = scene_for(case, dp, overrides, end_time=float(prm["end_time"]))
+    scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["end_time"]))
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     rho0 = scene.physics.rho0
     H = scene.hswl
@@ -299,7 +303,7 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
     from ..probes import ProbeSampler
     H = float(prm["H"])
     scale = math.sqrt(G / H)                       # T = t sqrt(g/H) (checked: see docs/validation.md)
-    scene = scene_for(case, dp, overrides, end_time=float(prm["T_end"]) / scale)
+    scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["T_end"]) / scale)
     # the far wall snaps to the nearest lattice plane: put the probe on that plane
     L = float(prm["L"])
     ox = float(scene.lattice_origin[0])
@@ -374,7 +378,8 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
 def run_body_force(case, dp, prm, backend, precision, overrides):
     """Force of the flow on a named body (`[forces]` sampler) against a measured force history."""
     from ..probes import ProbeSampler
-    scene = scene_for(case, dp, overrides, end_time=float(prm["t_end"]), layers=prm.get("layers"))
+    scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["t_end"]),
+                      layers=prm.get("layers"))
     lo, hi = np.array(prm["body_min"], float), np.array(prm["body_max"], float)
     spec = {"interval": 0.0, "points": [], "heights": [], "force_interval": float(prm["dt_sample"]),
             "bodies": [("body", lo, hi)]}
@@ -454,7 +459,8 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
     """Water height gauges (`[probes] heights`) against measured height histories, one dataset
     column a gauge, compared at the data's times with no time shift."""
     from ..probes import ProbeSampler
-    scene = scene_for(case, dp, overrides, end_time=float(prm["t_end"]), layers=prm.get("layers"))
+    scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["t_end"]),
+                      layers=prm.get("layers"))
     gauges = prm["gauges"]                         # [[name, x, y, data column], ...]
     floor = float(prm.get("floor", 0.0))
     spec = {"interval": float(prm["dt_sample"]), "points": [], "bodies": [], "force_interval": 0.0,
