@@ -455,7 +455,19 @@ def cmd_validate(args) -> int:
 
 
 # [physics] fields `sphgraph study` sweeps besides its own axes (sphgraph.study: extra axes)
-STUDY_PHYSICS = ("riemann", "diffusion_time", "boundary", "shifting", "visc_alpha")
+STUDY_PHYSICS = ("riemann", "riemann_wall", "riemann_jump", "diffusion_time", "boundary", "shifting", "visc_alpha")
+
+def _base_value(default, v: str):
+    """A --base value in its field's type (the scene's checks then judge its range): a number
+    for a numeric field (one that defaults to None, e.g. hswl, where it reads as one), else the
+    string."""
+    if isinstance(default, bool) or not isinstance(default, (int, float, type(None))):
+        return v
+    try:
+        return int(v) if isinstance(default, int) else float(v)
+    except ValueError:
+        return v
+
 
 def cmd_study(args) -> int:
     from .study import run_study
@@ -473,7 +485,7 @@ def cmd_study(args) -> int:
         if k not in PhysicsConfig.__dataclass_fields__:
             raise InputError(f"--base: {k!r} is not a [physics] field: expected one of "
                              f"{', '.join(sorted(PhysicsConfig.__dataclass_fields__))}")
-        base[k] = float(v) if k == "visc_alpha" else v.strip()
+        base[k] = _base_value(PhysicsConfig.__dataclass_fields__[k].default, v.strip())
     out = run_study(args.case, dps=_floats(args.dp, "--dp") if args.dp else None, axes=axes, out=args.out,
                     target_error=args.target_error, from_csv=args.from_csv, base=base)
     print(out["summary"])

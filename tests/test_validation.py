@@ -172,6 +172,17 @@ def test_study_sweeps_the_new_formulations_beside_dualsphysics(tmp_path, capsys)
     assert "--base: 'integrater' is not a [physics] field" in capsys.readouterr().err
 
 
+def test_study_sweeps_the_riemann_jump_with_a_numeric_base(tmp_path, capsys):
+    """`--riemann-jump` is an axis; `--base` numbers (riemann_eta=0.3) reach the scene as numbers."""
+    rc = main(["study", "poiseuille", "--dp", "5e-5", "--riemann-jump", "plain,renormalised", "--base",
+               "integrator=symplectic,riemann=zhang2017,boundary=mdbc,riemann_eta=0.3", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    rows = list(csv.DictReader(open(tmp_path / "study.csv")))
+    assert sorted(r["riemann_jump"] for r in rows) == ["plain", "renormalised"]
+    assert all(r["status"] == "ok" and float(r["riemann_eta"]) == 0.3 for r in rows), rows
+
+
 def test_run_writes_probes_and_forces_groups(tmp_path):
     """A scene with [probes] and [forces]: `sphgraph.run` samples them at their interval and
     writes /probes and /forces; a bad table is refused when the scene is read, before anything
