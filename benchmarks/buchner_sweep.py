@@ -73,6 +73,9 @@ VARIANTS = {   # in run order: the Riemann family first, DualSPHysics' reference
     "zhang-eta0.3-mdbc-renorm": (ZHANG + ("riemann_eta=0.3", "riemann_jump=renormalised"), "mdbc",
                                  "the same with the walls adding no jump and every fluid row's jump without its "
                                  "linear part (riemann_jump = renormalised: holds fast impacts, keeps dissipation)"),
+    "zhang-eta0.3-mdbc-renorm-cancel": (ZHANG + ("riemann_eta=0.3", "riemann_jump=renormalised", "riemann_wall=cancel"),
+                                        "mdbc", "the renormalised jump, the walls cancelling the jump of the rows it "
+                                        "cannot renormalise"),
     "zhang-shift": (ZHANG + ("shifting=nobound", "shifting_tfs=1.5"), None,
                     "zhang2017, Symplectic, particle shifting (Lind et al.; nobound, free-surface threshold 1.5)"),
     "dsph-df": (("diffusion_time=dufort-frankel",), None,

@@ -19,7 +19,8 @@ RIEMANN = {"riemann": "zhang2017", "riemann_eta": 0.3}
 # the Riemann arm: none, its default wall ("skip"), a wall cancelling the row's U* jump, the jump
 # without its linear part (riemann_jump = "renormalised"; mDBC walls only: refused with DBC)
 ARMS = {"none": {}, "skip": RIEMANN, "cancel": dict(RIEMANN, riemann_wall="cancel"),
-        "renormalised": dict(RIEMANN, riemann_jump="renormalised")}
+        "renormalised": dict(RIEMANN, riemann_jump="renormalised"),
+        "renormalised-cancel": dict(RIEMANN, riemann_jump="renormalised", riemann_wall="cancel")}
 
 
 def main(argv=None) -> int:
@@ -35,7 +36,7 @@ def main(argv=None) -> int:
     for speed in (float(s) for s in a.speeds.split(",")):
         for m in a.models.split(","):
             for riemann, keys in ARMS.items():
-                if riemann == "renormalised" and m.startswith("dbc"):
+                if riemann.startswith("renormalised") and m.startswith("dbc"):
                     continue
                 physics = dict({"integrator": "symplectic"}, **keys)
                 c = penetration_map([speed], [m], dp=a.dp, physics=physics)[0]

@@ -37,6 +37,10 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
         # the walls adding no jump, every fluid row's jump without its linear part
         "zhang-mdbc4-renorm": ({"boundary": "mdbc", "layers": 4}, {"riemann": "zhang2017", "riemann_eta": 0.3,
                                                                   "riemann_jump": "renormalised"}),
+        # the same, the walls cancelling the jump of the rows it cannot renormalise
+        "zhang-mdbc4-renorm-cancel": ({"boundary": "mdbc", "layers": 4},
+                                      {"riemann": "zhang2017", "riemann_eta": 0.3, "riemann_jump": "renormalised",
+                                       "riemann_wall": "cancel"}),
         "zhang-noslip4-renorm": ({"boundary": "mdbc-noslip", "layers": 4},
                                  {"riemann": "zhang2017", "riemann_eta": 0.3, "riemann_jump": "renormalised",
                                   "laminar_nu": 1e-6}),

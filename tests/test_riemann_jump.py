@@ -69,8 +69,9 @@ def test_a_linear_field_loses_its_jump_and_a_curved_one_keeps_the_rest():
 @pytest.mark.parametrize("wall", ["skip", "cancel"])
 def test_kernel_and_reduction_against_a_direct_sum(wall):
     """The interior part's moments and the reduced continuity term against the formulas summed
-    over all pairs (numpy, O(N^2)): ar + jump + (-grad P . S where det M > RJ_DET_MIN_2D), the
-    jump and its correction dropped where a wall cancels the row's jump."""
+    over all pairs (numpy, O(N^2)): ar + jump + (-grad P . S where det M > RJ_DET_MIN_2D); with
+    "cancel" the jump and its correction dropped where a wall neighbour cancels the jump of a row
+    whose gradient cannot be renormalised, kept where it can."""
     from sphgraph.probes import grad_factor
     from sphgraph.physics.riemann_jump import RJ_DET_MIN_2D
     sim = Simulation(still(wall=wall), invariants=False)
@@ -109,9 +110,12 @@ def test_kernel_and_reduction_against_a_direct_sum(wall):
     st.reduced_stage = None
     c.reduce_forces(st, 0)
     cut = buf.cancel != 0
-    want = buf.ar + np.where(cut, 0.0, buf.ddt + corr)
+    keep = ~cut | ok           # "cancel" drops the jump of the rows next to a wall it cannot renormalise
+    want = buf.ar + np.where(keep, buf.ddt + corr, 0.0)
     np.testing.assert_allclose(st.ar[fl], want[fl], rtol=1e-9, atol=1e-9 * np.abs(want[fl]).max())
-    assert np.abs(corr[fl & ~cut]).max() > 1e-3 * np.abs(buf.ddt[fl]).max()   # the correction acts
+    assert np.abs(corr[fl & keep]).max() > 1e-3 * np.abs(buf.ddt[fl]).max()   # the correction acts
+    if wall == "cancel":       # both kinds of wall row are there: one keeps its jump, one loses it
+        assert (fl & cut & ok).any() and (fl & cut & ~ok).any()
 
 
 def test_mock_ranks_match_one_rank():
@@ -145,13 +149,17 @@ def test_keys():
 def test_the_renormalised_jump_holds_the_jet_that_passes_an_mdbc_wall():
     """The penetration map's slab at 20 m/s onto four and three mDBC layers (dp 0.02, as
     tests/test_riemann.py): the plain jump with "skip" lets fluid through (measured: 15 and 17
-    rows), the renormalised one none, with the wall still adding no jump."""
+    rows), the renormalised one none, with the wall still adding no jump, and none with the walls
+    cancelling the jump of the rows it cannot renormalise ("cancel")."""
     from sphgraph.stability import penetration_map
     riemann = {"integrator": "symplectic", "riemann": "zhang2017", "riemann_eta": 0.3}
     plain = penetration_map([20.0], ["mdbc-4", "mdbc-3"], dp=0.02, physics=riemann)
     renorm = penetration_map([20.0], ["mdbc-4", "mdbc-3"], dp=0.02, physics=dict(riemann, riemann_jump="renormalised"))
+    hybrid = penetration_map([20.0], ["mdbc-4", "mdbc-3"], dp=0.02,
+                             physics=dict(riemann, riemann_jump="renormalised", riemann_wall="cancel"))
     assert all(r["through"] > 0 for r in plain)
     assert [(r["through"], r["verdict"]) for r in renorm] == [(0, "stable"), (0, "stable")]
+    assert [(r["through"], r["verdict"]) for r in hybrid] == [(0, "stable"), (0, "stable")]
 
 
 @pytest.mark.mpi

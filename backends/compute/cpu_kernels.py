@@ -20,7 +20,7 @@ from sphgraph.physics.interact import bound_pair, diffusion_coef, fluid_pair, ri
 from sphgraph.physics.integrate import (bound_density, correct_axis, correct_density, predict_axis,  # noqa: E402
                                         predict_density, verlet_axis, verlet_density)
 from sphgraph.physics.kernels import grad_factor  # noqa: E402
-from sphgraph.physics.riemann_jump import jump_correction, jump_moments  # noqa: E402
+from sphgraph.physics.riemann_jump import jump_correction, jump_kept, jump_moments  # noqa: E402
 from sphgraph.particles import FIXED  # noqa: E402
 
 
@@ -351,7 +351,8 @@ def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, 
     were computed in. With `dk` as long as `ar` (the DuFort-Frankel step) the parts'
     diffusion coefficients K_a are summed into it the same way (0 where cancelled). With
     `jms` n rows wide (12 x n each, the renormalised jump) the parts' moments are summed and
-    the row's correction (riemann_jump.jump_correction) added to its uncancelled jump.
+    the row's correction (riemann_jump.jump_correction) added to its jump where it is kept
+    (riemann_jump.jump_kept: a cancel drops only the jump of a row it cannot renormalise).
     """
     df = dk.shape[0] == ar.shape[0] and ar.shape[0] > 0
     rj = jms[0].shape[1] == ar.shape[0] and ar.shape[0] > 0
@@ -373,11 +374,15 @@ def reduce_parts(aces, ars, ddts, cancels, viscs, kind, gravity, ace, ar, visc, 
             cc |= cancels[k][i]
             if viscs[k][i] > v:
                 v = viscs[k][i]
-        if rj and cc == 0 and kind[i] == 0:
-            dd += jump_correction(_psum(jms, 0, i), _psum(jms, 1, i), _psum(jms, 2, i), _psum(jms, 3, i),
-                                  _psum(jms, 4, i), _psum(jms, 5, i), _psum(jms, 6, i), _psum(jms, 7, i),
-                                  _psum(jms, 8, i), _psum(jms, 9, i), _psum(jms, 10, i), _psum(jms, 11, i), dim)
-        ar[i] = s + (dd if cc == 0 else 0.0 * dd)
+        keep = cc == 0
+        if rj and kind[i] == 0:
+            m0, m1, m2 = _psum(jms, 0, i), _psum(jms, 1, i), _psum(jms, 2, i)
+            m3, m4, m5 = _psum(jms, 3, i), _psum(jms, 4, i), _psum(jms, 5, i)
+            keep = jump_kept(cc, m0, m1, m2, m3, m4, m5, dim)
+            if keep:
+                dd += jump_correction(m0, m1, m2, m3, m4, m5, _psum(jms, 6, i), _psum(jms, 7, i),
+                                      _psum(jms, 8, i), _psum(jms, 9, i), _psum(jms, 10, i), _psum(jms, 11, i), dim)
+        ar[i] = s + (dd if keep else 0.0 * dd)
         visc[i] = v
         if df:
             k = 0.0 * s

@@ -27,7 +27,7 @@ import types
 from numba import cuda, njit
 
 from sphgraph.config import O_RIEMANN, O_RIEMANN_JUMP
-from sphgraph.physics.riemann_jump import RJ_SUMS, jump_correction, jump_moments
+from sphgraph.physics.riemann_jump import RJ_SUMS, jump_correction, jump_kept, jump_moments
 from sphgraph.state import PARTS
 
 from . import cuda_forces as CF
@@ -81,10 +81,12 @@ def _store_jm(i, final, cc, k0, k1, k2, k3, k4, k5, k6, k7, k8, k9, k10, k11, jm
 
 
 # --------------------------------------------------------------------------------- reduction
-def k_reduce_jm(nparts, n, dim, kind, j0, c0, j1, c1, j2, c2, j3, c3, ar_):
+def k_reduce_jm(nparts, n, dim, kind, j0, c0, d0, j1, c1, d1, j2, c2, d2, j3, c3, d3, ar_):
     """The parts' moments summed (interior, halo 1, halo 2, images: the `nparts` present, in
     k_reduce's order) and the jump's correction added to the fluid rows' ar_ (k_reduce's
-    result) where no part cancelled the row's jump (cpu: the same sums and jump_correction)."""
+    result) where the row keeps its jump (jump_kept: no part cancelled it, or one did and the
+    row is renormalised -- then k_reduce dropped the parts' jumps d0..d3, added back here;
+    cpu: the same sums, jump_kept and jump_correction)."""
     i = cuda.grid(1)
     if i >= n or kind[i] != 0:
         return
@@ -95,8 +97,6 @@ def k_reduce_jm(nparts, n, dim, kind, j0, c0, j1, c1, j2, c2, j3, c3, ar_):
         cc |= c2[i]
     if nparts > 3:
         cc |= c3[i]
-    if cc != 0:
-        return
     m = cuda.local.array(12, RT)
     for k in range(12):
         s = j0[k, i]
@@ -107,10 +107,22 @@ def k_reduce_jm(nparts, n, dim, kind, j0, c0, j1, c1, j2, c2, j3, c3, ar_):
         if nparts > 3:
             s += j3[k, i]
         m[k] = s
-    ar_[i] += jump_correction(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11], dim)
+    if not jump_kept(cc, m[0], m[1], m[2], m[3], m[4], m[5], dim):
+        return
+    add = jump_correction(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11], dim)
+    if cc != 0:
+        dd = d0[i]
+        if nparts > 1:
+            dd += d1[i]
+        if nparts > 2:
+            dd += d2[i]
+        if nparts > 3:
+            dd += d3[i]
+        add = dd + add
+    ar_[i] += add
 
 
-def k_reduce_ranged_jm(n, dim, kind, j0, c0, rng, h1, o1, j1, c1, h2, o2, j2, c2, ar_):
+def k_reduce_ranged_jm(n, dim, kind, j0, c0, d0, rng, h1, o1, j1, c1, d1, h2, o2, j2, c2, d2, ar_):
     """k_reduce_jm with ipc halo parts, each added at its fluid target rows only (as
     cuda_halo_kernels.k_reduce_ranged)."""
     i = cuda.grid(1)
@@ -123,8 +135,6 @@ def k_reduce_ranged_jm(n, dim, kind, j0, c0, rng, h1, o1, j1, c1, h2, o2, j2, c2
         cc |= c1[i]
     if in2:
         cc |= c2[i]
-    if cc != 0:
-        return
     m = cuda.local.array(12, RT)
     for k in range(12):
         s = j0[k, i]
@@ -133,7 +143,17 @@ def k_reduce_ranged_jm(n, dim, kind, j0, c0, rng, h1, o1, j1, c1, h2, o2, j2, c2
         if in2:
             s += j2[k, i]
         m[k] = s
-    ar_[i] += jump_correction(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11], dim)
+    if not jump_kept(cc, m[0], m[1], m[2], m[3], m[4], m[5], dim):
+        return
+    add = jump_correction(m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7], m[8], m[9], m[10], m[11], dim)
+    if cc != 0:
+        dd = d0[i]
+        if in1:
+            dd += d1[i]
+        if in2:
+            dd += d2[i]
+        add = dd + add
+    ar_[i] += add
 
 
 # ------------------------------------------------------------------------------ compilation
@@ -191,13 +211,13 @@ def reduce(be, state, dv, ranged) -> None:
         inner = P["interior"]
         flat = []
         for used, r, b in CH.ranged_parts(dv):
-            flat += [used, r, b["jm"], b["cancel"]]
+            flat += [used, r, b["jm"], b["cancel"], b["ddt"]]
         k.k_reduce_ranged_jm[CK.blocks(dv.n), CK.BLOCK](dv.n, dv.dim, A["kind"], inner["jm"], inner["cancel"],
-                                                       A["pick8"], *flat, A["ar"])
+                                                       inner["ddt"], A["pick8"], *flat, A["ar"])
         return
     bufs = [P[p] for p in PARTS if p in P]
     nparts = len(bufs)
     while len(bufs) < 4:
         bufs.append(bufs[0])
-    flat = [x for b in bufs for x in (b["jm"], b["cancel"])]
+    flat = [x for b in bufs for x in (b["jm"], b["cancel"], b["ddt"])]
     k.k_reduce_jm[CK.blocks(dv.n), CK.BLOCK](nparts, dv.n, dv.dim, A["kind"], *flat, A["ar"])

@@ -34,8 +34,12 @@ fluid pairs, the twelve moments
     M (6: m00 m01 m02 m11 m12 m22), g (3), S = sum_b m_b rho_a/rho_b F r r_ab / (rho0 c0) (3),
 
 (`jump_moments`), and the correction -grad P_a . S_a is added once per row where the parts
-are summed (`jump_correction`), unless a neighbour cancelled the row's jump
-(riemann_wall = "cancel"). numba-cpu and numba-cuda call these same functions.
+are summed (`jump_correction`). With riemann_wall = "cancel" a wall neighbour cancels the jump
+of only the rows it cannot renormalise (`jump_kept`): those keep the plain jump's first-order
+drain, which in SPHERIC 2's 3D impacts let the fluid through mDBC walls (the rows at a wall and
+roof corner, a thin sheet running up a wall), while a row whose gradient is formed keeps its
+corrected jump and with it the dissipation that "cancel" alone takes away next to every wall.
+numba-cpu and numba-cuda call these same functions.
 """
 from numba import njit
 
@@ -58,6 +62,22 @@ def jump_moments(drx, dry, drz, r2, r, rho_a, rho_b, p_a, p_b, mass_b, prm, kern
     s = (mass_b * rho_a) * fac / rho_b * r / prm[P_RHO0C0]
     return (w * drx * drx, w * drx * dry, w * drx * drz, w * dry * dry, w * dry * drz, w * drz * drz,
             q * drx, q * dry, q * drz, s * drx, s * dry, s * drz)
+
+
+@njit(inline="always", cache=True)
+def renormalisable(m00, m01, m02, m11, m12, m22, dim):
+    """Whether row a's M_a is invertible with confidence (det M_a above RJ_DET_MIN)."""
+    if dim == 2:
+        return m00 * m11 - m01 * m01 > RJ_DET_MIN_2D
+    det = m00 * (m11 * m22 - m12 * m12) + m01 * (m02 * m12 - m01 * m22) + m02 * (m01 * m12 - m02 * m11)
+    return det > RJ_DET_MIN_3D
+
+
+@njit(inline="always", cache=True)
+def jump_kept(cc, m00, m01, m02, m11, m12, m22, dim):
+    """Whether row a keeps its (corrected) jump: no neighbour cancelled it (cc == 0), or one did
+    (riemann_wall = "cancel") but the row's gradient is renormalised (module docstring)."""
+    return cc == 0 or renormalisable(m00, m01, m02, m11, m12, m22, dim)
 
 
 @njit(inline="always", cache=True)
