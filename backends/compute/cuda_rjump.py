@@ -26,8 +26,7 @@ import types
 
 from numba import cuda, njit
 
-from sphgraph.config import O_RIEMANN, O_RIEMANN_JUMP
-from sphgraph.physics.riemann_jump import RJ_SUMS, jump_correction, jump_kept, jump_moments
+from sphgraph.physics.riemann_jump import RJ_SUMS, jump_correction, jump_kept, jump_moments, renormalised
 from sphgraph.state import PARTS
 
 from . import cuda_forces as CF
@@ -41,7 +40,7 @@ from .cuda_variants import ForceVariant, with_sum
 
 
 def enabled(state) -> bool:
-    return bool(state.opt[O_RIEMANN]) and bool(state.opt[O_RIEMANN_JUMP])
+    return renormalised(state.opt)
 
 
 # ------------------------------------------------------------------------------ force kernels

@@ -5,10 +5,10 @@ import numba
 import numpy as np
 
 from sphgraph.cells import build_grid, cell_keys, grid_takes, reach_cells
-from sphgraph.config import O_DDT_DF, O_RIEMANN, O_RIEMANN_JUMP, P_RHO0
+from sphgraph.config import O_DDT_DF, O_RIEMANN, P_RHO0
 from sphgraph.particles import MOVING
 from sphgraph.registry import register
-from sphgraph.physics.riemann_jump import RJ_SUMS
+from sphgraph.physics.riemann_jump import RJ_SUMS, renormalised
 from sphgraph.state import ForceBuffers, PARTS
 
 from . import cpu_kernels as K
@@ -146,7 +146,7 @@ class NumbaCPU(ComputeBackend):
         p = state.particles
         buf = state.parts.get(part)
         df = bool(state.opt[O_DDT_DF])
-        rj = bool(state.opt[O_RIEMANN] and state.opt[O_RIEMANN_JUMP])
+        rj = renormalised(state.opt)
         if buf is None or buf.ar.shape[0] != p.n or (df and buf.ddk.shape[0] != p.n) or \
                 (rj and buf.jm.shape[1] != p.n):
             buf = state.parts[part] = ForceBuffers.empty(p.n, p.dim, state.dtype, ddk=df, jm=rj)
@@ -199,7 +199,7 @@ class NumbaCPU(ComputeBackend):
     def _jm(buf, state):
         """A part's moments of the renormalised jump (12 x n; 12 x 0 without it); a user
         task's buffer adds none, so zeros."""
-        n = state.particles.n if (state.opt[O_RIEMANN] and state.opt[O_RIEMANN_JUMP]) else 0
+        n = state.particles.n if renormalised(state.opt) else 0
         if buf.jm is None or buf.jm.shape[1] != n:
             buf.jm = np.zeros((RJ_SUMS, n), state.dtype)
         return buf.jm

@@ -43,12 +43,18 @@ numba-cpu and numba-cuda call these same functions.
 """
 from numba import njit
 
-from ..config import P_RHO0C0
+from ..config import O_RIEMANN_JUMP, P_RHO0C0
 from .kernels import grad_factor
 
 RJ_SUMS = 12                      # the moments a row carries per part (m 6, g 3, s 3)
 RJ_DET_MIN_2D = 0.2               # det M_a below which a row keeps the plain jump (module doc)
 RJ_DET_MIN_3D = 0.08
+
+
+def renormalised(opt) -> bool:
+    """Whether a run's options (config.derive's `opt`) ask for the renormalised jump: derive sets
+    O_RIEMANN_JUMP only with the Riemann term on, so this one entry decides."""
+    return bool(opt[O_RIEMANN_JUMP])
 
 
 @njit(inline="always", cache=True)
