@@ -291,6 +291,14 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     rjump-buchner) stage rjump_buchner 180 python3 benchmarks/buchner_sweep.py --backend numba-cuda \
                 --precision float64 --dp-fractions 80 --variants zhang-eta0.3-mdbc-renorm --timeout-per-run 150 \
                 --json "$OUT/rjump_buchner.json" ;;
+    # with riemann_wall = "cancel": the walls cancel the jump of only the rows it cannot renormalise
+    rjump-s2-cancel) stage rjump_s2_cancel 360 python3 benchmarks/spheric2_heights.py --backend numba-cuda \
+                --dp 0.02 --runs zhang-mdbc4-renorm-cancel --json "$OUT/rjump_s2_cancel.json" \
+                --plot "$OUT/rjump_s2_cancel.png" ;;
+    rjump-buchner-80|rjump-buchner-120) n=${s##*-}; stage rjump_buchner_$n 330 python3 benchmarks/buchner_sweep.py \
+                --backend numba-cuda --precision float64 --dp-fractions $n \
+                --variants zhang-eta0.3-mdbc-renorm zhang-eta0.3-mdbc-renorm-cancel --timeout-per-run 160 \
+                --json "$OUT/rjump_buchner_$n.json" ;;
     tests-rjump) stage tests_rjump 240 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
                 tests/test_cuda_riemann_jump.py tests/test_cuda_riemann.py ;;
     *) echo "unknown stage $s"; exit 2 ;;
