@@ -589,12 +589,14 @@ def plot_study(rows: list, path, title: str = "", error_key: str = "error",
     ax = fig.subplots()
     ok = [r for r in rows if np.isfinite(r[error_key]) and r["wall_s"] > 0]
     groups: dict = {}
-    std = {"case", "dp", "integrator", "kernel", "diffusion", "precision", "backend", "error", "wall_s", "steps",
-           "particles", "status", "pareto"}
+    # a run is labelled by the settings that differ between the plotted runs: the ones they all share
+    # would make every label the same long line
+    result = {"case", "dp", "error", "wall_s", "steps", "particles", "status", "pareto", error_key}
+    keys = [k for k in rows[0] if k not in result] if rows else []
+    varied = [k for k in keys if len({str(r.get(k)) for r in ok}) > 1]
     for r in ok:
-        extra = "".join(f", {k}={r[k]}" for k in sorted(r) if k not in std and k != error_key)
-        groups.setdefault(f"{r['integrator']}, {r['kernel']}, {r['diffusion']}, {r['precision']}, {r['backend']}"
-                          + extra, []).append(r)
+        label = ", ".join(f"{k}={r[k]}" for k in varied) or ", ".join(f"{k}={r[k]}" for k in keys[:5])
+        groups.setdefault(label, []).append(r)
     markers = "osD^v<>ph*"
     for i, (label, rs) in enumerate(sorted(groups.items())):
         rs = sorted(rs, key=lambda r: r["dp"])
@@ -614,10 +616,10 @@ def plot_study(rows: list, path, title: str = "", error_key: str = "error",
     ax.set_yscale("log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(error_key.replace("_", " "))
-    ax.set_title((title or "error against cost") + (f"  ({len(failed)} runs failed)" if failed else ""),
+    ax.set_title((title or "error against cost") + (f"  ({len(failed)} run{'s' * (len(failed) != 1)} failed)" if failed else ""),
                  fontsize=9)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=6, loc="best")
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=1, frameon=False)
     return _save(fig, path)
 
 

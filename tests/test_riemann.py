@@ -6,19 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from riemann_direct import interior_forces, pair_geometry, still_tank
 from sphgraph import InputError, Scene, Simulation
-from sphgraph.config import K_WENDLAND, P_BW, P_C0, P_RHO0C0, P_RIEMANN_ETA
+from sphgraph.config import K_WENDLAND, P_C0, P_RHO0C0, P_RIEMANN_ETA
 
 
 def still(riemann="zhang2017", integrator="symplectic", jitter=0.0, boundary="dbc", riemann_wall="skip"):
-    return Scene.from_dict({
-        "format": 1, "dim": 2, "dp": 0.04, "end_time": 1.0,
-        "domain": {"min": [-0.2, -0.2], "max": [1.8, 0.8], "origin": [0.0, 0.0], "exclude_outside": False},
-        "physics": {"riemann": riemann, "integrator": integrator, "boundary": boundary,
-                    "riemann_wall": riemann_wall},
-        "initial": {"hydrostatic": True, "jitter": jitter},
-        "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.6, 0.4]}],
-        "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.6, 0.6], "layers": 3}]})
+    return still_tank(jitter, riemann=riemann, integrator=integrator, boundary=boundary, riemann_wall=riemann_wall)
 
 
 def _pair(prm, ra, rb, va, vb, rho_a, rho_b, pa, pb, m=1.0):
@@ -65,23 +59,11 @@ def test_pair_conserves_momentum_and_the_limiter_acts_in_compression_only():
 def test_kernel_against_a_direct_sum(boundary, wall):
     """The part's sums: continuity (ar) and the U* jump (ddt) apart; with riemann_wall = "cancel"
     a row with a boundary neighbour is marked to cancel its jump, and the reduction drops it."""
-    sim = Simulation(still(jitter=0.1, boundary=boundary, riemann_wall=wall), invariants=False)
-    for _ in range(3):
-        sim.step()
-    st = sim.contexts[0].state
-    c = sim.compute
-    c.build_cells(st)
-    c.forces(st, "interior")
-    buf = st.parts["interior"]
+    c, st, buf = interior_forces(still(jitter=0.1, boundary=boundary, riemann_wall=wall))
     p = st.particles
     k = st.consts
     prm = k.prm
-    from sphgraph.probes import grad_factor
-    d = p.pos[:, None, :] - p.pos[None, :, :]
-    r2 = (d * d).sum(-1)
-    r = np.sqrt(r2)
-    near = (r2 <= 4 * k.h ** 2) & (r2 >= 1e-18)
-    F = np.where(near, grad_factor(r, k.h, float(prm[P_BW]), "wendland"), 0.0)
+    d, r2, r, near, F = pair_geometry(st)
     v = p.vel
     dv = v[:, None, :] - v[None, :, :]
     dot = (dv * d).sum(-1)

@@ -8,19 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from riemann_direct import interior_forces, pair_geometry, still_tank
 from sphgraph import InputError, Scene, Simulation
-from sphgraph.config import K_WENDLAND, P_BW, P_RHO0C0
+from sphgraph.config import K_WENDLAND, P_RHO0C0
 
 
 def still(jump="renormalised", boundary="mdbc", riemann="zhang2017", jitter=0.1, wall="skip"):
-    return Scene.from_dict({
-        "format": 1, "dim": 2, "dp": 0.04, "end_time": 1.0,
-        "domain": {"min": [-0.2, -0.2], "max": [1.8, 0.8], "origin": [0.0, 0.0], "exclude_outside": False},
-        "physics": {"riemann": riemann, "integrator": "symplectic", "boundary": boundary,
-                    "riemann_jump": jump, "riemann_wall": wall},
-        "initial": {"hydrostatic": True, "jitter": jitter},
-        "fluid": [{"type": "box", "min": [0.0, 0.0], "max": [1.6, 0.4]}],
-        "boundary": [{"type": "tank", "min": [0.0, 0.0], "max": [1.6, 0.6], "layers": 3}]})
+    return still_tank(jitter, riemann=riemann, boundary=boundary, riemann_jump=jump, riemann_wall=wall)
 
 
 def _row_sums(prm, ra, pa, rbs, pbs, rho_a=1000.0, rho_b=1000.0, m=1.6):
@@ -72,26 +66,14 @@ def test_kernel_and_reduction_against_a_direct_sum(wall):
     over all pairs (numpy, O(N^2)): ar + jump + (-grad P . S where det M > RJ_DET_MIN_2D); with
     "cancel" the jump and its correction dropped where a wall neighbour cancels the jump of a row
     whose gradient cannot be renormalised, kept where it can."""
-    from sphgraph.probes import grad_factor
     from sphgraph.physics.riemann_jump import RJ_DET_MIN_2D
-    sim = Simulation(still(wall=wall), invariants=False)
-    for _ in range(3):
-        sim.step()
-    st = sim.contexts[0].state
-    c = sim.compute
-    c.build_cells(st)
-    c.forces(st, "interior")
-    buf = st.parts["interior"]
+    c, st, buf = interior_forces(still(wall=wall))
     p = st.particles
     k = st.consts
     prm = k.prm
-    d = p.pos[:, None, :] - p.pos[None, :, :]
-    r2 = (d * d).sum(-1)
-    r = np.sqrt(r2)
+    d, r2, r, near, F = pair_geometry(st)
     fl = p.kind == 0
-    near = (r2 <= 4 * k.h ** 2) & (r2 >= 1e-18)
     pair = near & fl[None, :]                          # moments: fluid neighbours only
-    F = np.where(near, grad_factor(r, k.h, float(prm[P_BW]), "wendland"), 0.0)
     m, P, rho = k.mass_fluid, st.press, p.rho
     V = np.where(pair, m / rho[None, :] * F, 0.0)
     M = -np.einsum("ab,abi,abj->aij", V, d, d)
