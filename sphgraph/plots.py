@@ -616,8 +616,8 @@ def plot_study(rows: list, path, title: str = "", error_key: str = "error",
     ax.set_yscale("log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(error_key.replace("_", " "))
-    ax.set_title((title or "error against cost") + (f"  ({len(failed)} run{'s' * (len(failed) != 1)} failed)" if failed else ""),
-                 fontsize=9)
+    stopped = f"  ({len(failed)} run{'s' * (len(failed) != 1)} failed)" if failed else ""
+    ax.set_title((title or "error against cost") + stopped, fontsize=9)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=1, frameon=False)
     return _save(fig, path)
