@@ -71,12 +71,22 @@ def jump_moments(drx, dry, drz, r2, r, rho_a, rho_b, p_a, p_b, mass_b, prm, kern
 
 
 @njit(inline="always", cache=True)
+def _det(m00, m01, m02, m11, m12, m22, dim):
+    """det M_a (the 2x2 block in 2D), expanded along the first row as jump_correction's cofactors."""
+    if dim == 2:
+        return m00 * m11 - m01 * m01
+    return m00 * (m11 * m22 - m12 * m12) + m01 * (m02 * m12 - m01 * m22) + m02 * (m01 * m12 - m02 * m11)
+
+
+@njit(inline="always", cache=True)
+def _det_min(dim):
+    return RJ_DET_MIN_2D if dim == 2 else RJ_DET_MIN_3D
+
+
+@njit(inline="always", cache=True)
 def renormalisable(m00, m01, m02, m11, m12, m22, dim):
     """Whether row a's M_a is invertible with confidence (det M_a above RJ_DET_MIN)."""
-    if dim == 2:
-        return m00 * m11 - m01 * m01 > RJ_DET_MIN_2D
-    det = m00 * (m11 * m22 - m12 * m12) + m01 * (m02 * m12 - m01 * m22) + m02 * (m01 * m12 - m02 * m11)
-    return det > RJ_DET_MIN_3D
+    return _det(m00, m01, m02, m11, m12, m22, dim) > _det_min(dim)
 
 
 @njit(inline="always", cache=True)
@@ -90,25 +100,21 @@ def jump_kept(cc, m00, m01, m02, m11, m12, m22, dim):
 def jump_correction(m00, m01, m02, m11, m12, m22, g0, g1, g2, s0, s1, s2, dim):
     """-grad P_a . S_a: what the row's summed jumps lose with their linear part (0 where det M_a
     is below RJ_DET_MIN: the row keeps the plain jump)."""
-    if dim == 2:
-        det = m00 * m11 - m01 * m01
-        if det > RJ_DET_MIN_2D:
-            inv = 1.0 / det
-            gx = (m11 * g0 - m01 * g1) * inv
-            gy = (m00 * g1 - m01 * g0) * inv
-            return -(gx * s0 + gy * s1)
+    det = _det(m00, m01, m02, m11, m12, m22, dim)
+    if not det > _det_min(dim):
         return 0.0 * det
+    inv = 1.0 / det
+    if dim == 2:
+        gx = (m11 * g0 - m01 * g1) * inv
+        gy = (m00 * g1 - m01 * g0) * inv
+        return -(gx * s0 + gy * s1)
     c00 = m11 * m22 - m12 * m12
     c01 = m02 * m12 - m01 * m22
     c02 = m01 * m12 - m02 * m11
-    det = m00 * c00 + m01 * c01 + m02 * c02
-    if det > RJ_DET_MIN_3D:
-        inv = 1.0 / det
-        c11 = m00 * m22 - m02 * m02
-        c12 = m01 * m02 - m00 * m12
-        c22 = m00 * m11 - m01 * m01
-        gx = (c00 * g0 + c01 * g1 + c02 * g2) * inv
-        gy = (c01 * g0 + c11 * g1 + c12 * g2) * inv
-        gz = (c02 * g0 + c12 * g1 + c22 * g2) * inv
-        return -(gx * s0 + gy * s1 + gz * s2)
-    return 0.0 * det
+    c11 = m00 * m22 - m02 * m02
+    c12 = m01 * m02 - m00 * m12
+    c22 = m00 * m11 - m01 * m01
+    gx = (c00 * g0 + c01 * g1 + c02 * g2) * inv
+    gy = (c01 * g0 + c11 * g1 + c12 * g2) * inv
+    gz = (c02 * g0 + c12 * g1 + c22 * g2) * inv
+    return -(gx * s0 + gy * s1 + gz * s2)
