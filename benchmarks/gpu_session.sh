@@ -299,6 +299,9 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
                 --backend numba-cuda --precision float64 --dp-fractions $n \
                 --variants zhang-eta0.3-mdbc-renorm zhang-eta0.3-mdbc-renorm-cancel --timeout-per-run 160 \
                 --json "$OUT/rjump_buchner_$n.json" ;;
+    sites-s2-renorm-cancel) stage sites_s2_renorm_cancel 330 python3 benchmarks/exclusion_sites.py \
+                --backend numba-cuda --dp 0.02 --t-end 3.6 --run zhang-mdbc4-renorm-cancel \
+                --json "$OUT/sites_s2_renorm_cancel.json" --plot "$OUT/sites_s2_renorm_cancel.png" ;;
     tests-rjump) stage tests_rjump 240 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
                 tests/test_cuda_riemann_jump.py tests/test_cuda_riemann.py ;;
     *) echo "unknown stage $s"; exit 2 ;;

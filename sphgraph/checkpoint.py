@@ -49,7 +49,8 @@ CKPT_DIR = "checkpoints"
 KEEP = 2
 FORMAT = 1
 FIELDS = ("id", "kind", "pos", "vel", "rho", "vel_m1", "rho_m1")
-EXCLUSION_FIELDS = ("step", "time", "id", "cause")   # /exclusions (sphgraph.features.Features.exclusions)
+EXCLUSION_FIELDS = ("step", "time", "id", "cause", "position", "velocity", "density")   # /exclusions
+# (sphgraph.features.Features.exclusions); checkpoints written before the last three had the first four
 _NAME = re.compile(r"^ckpt_(\d+)\.h5$")
 _EVERY_FORM = "N (steps, an integer >= 1) or Ts (simulated seconds, e.g. 0.05s)"
 
@@ -111,7 +112,7 @@ def _digest(meta: dict, blocks: list[dict], cuts: np.ndarray | None, exclusions:
     if cuts is not None:
         h.update(np.ascontiguousarray(cuts, np.float64).tobytes())
     if exclusions is not None:   # absent from checkpoints without exclude_outside: their sums are unchanged
-        for name in EXCLUSION_FIELDS:
+        for name in (k for k in EXCLUSION_FIELDS if k in exclusions):
             a = np.ascontiguousarray(exclusions[name])
             h.update(f"exclusions/{name}:{a.dtype.str}:{a.shape}".encode())
             h.update(a.tobytes())
@@ -202,8 +203,8 @@ def load(path) -> Checkpoint:
             n = int(meta["ranks"])
             raw = [{name: f[f"rank_{r:04d}/{name}"][()] for name in FIELDS} for r in range(n)]
             cuts = f["cuts"][()] if "cuts" in f else None
-            exclusions = ({name: f[f"exclusions/{name}"][()] for name in EXCLUSION_FIELDS}
-                          if "exclusions" in f else None)
+            exclusions = ({name: f[f"exclusions/{name}"][()] for name in EXCLUSION_FIELDS
+                           if name in f["exclusions"]} if "exclusions" in f else None)
     except _UNREADABLE as e:
         raise InputError(f"{path}: checkpoint: expected a complete sphgraph checkpoint, "
                          f"got an unreadable file ({type(e).__name__}: {e})") from None

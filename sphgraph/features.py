@@ -171,7 +171,7 @@ class Features:
         self.periodic = None
         self.shifting = None
         self.exclude_outside = bool(scene.exclude_outside)
-        self.excluded = []          # (step, time, id, cause) rows of this process's ranks
+        self.excluded = []          # (step, time, id, cause, position, velocity, density) rows of this process's ranks
         self.restored = None        # a checkpoint's rows (every rank's, on the root), see restore_exclusions
         self.restored_step = -1
         self.stages = 1 if scene.physics.integrator == "verlet" else 2
@@ -292,7 +292,10 @@ class Features:
         if len(rows) == 0:
             return bad
         step, time = st.step + 1, st.time + st.dt    # as the solver counts them once the step ends
-        st.excluded = [(step, time, int(p.id[r]), int(cause[r])) for r in rows]
+        # where and how each row left: what a user needs to find the wall or the jet it came through
+        vel, rho = np.asarray(p.vel), np.asarray(p.rho)
+        st.excluded = [(step, time, int(p.id[r]), int(cause[r]), tuple(map(float, x[r])),
+                        tuple(map(float, vel[r])), float(rho[r])) for r in rows]
         st.extra["excluded_ids"] = np.concatenate([st.extra["excluded_ids"], p.id[rows]])
         st.particles = p.take(np.nonzero(cause == 0)[0])
         ctx.compute.prepare(st)
@@ -336,8 +339,7 @@ class Features:
         before `step` (the solver may add them from ``output.h5``'s ``/exclusions``) are
         then the same ones and left out of :meth:`exclusions`."""
         self.restored_step = int(step)
-        self.restored = [(int(a), float(b), int(c), int(e)) for a, b, c, e in
-                         zip(cols["step"], cols["time"], cols["id"], cols["cause"])] if root else []
+        self.restored = exclusion_rows(cols, self.scene.dim) if root else []
 
     def exclusions(self, sim) -> dict | None:
         """Every rank's exclusions gathered (root), sorted by (step, id); None elsewhere."""
@@ -349,11 +351,33 @@ class Features:
             if parts is None:
                 return None
             rows = [r for p in parts for r in p]
-        rows = sorted(rows, key=lambda r: (r[0], r[2]))
-        return {"step": np.array([r[0] for r in rows], np.int64),
-                "time": np.array([r[1] for r in rows], float),
-                "id": np.array([r[2] for r in rows], np.int64),
-                "cause": np.array([r[3] for r in rows], np.int8)}
+        return exclusion_columns(sorted(rows, key=lambda r: (r[0], r[2])), self.scene.dim)
+
+
+def exclusion_columns(rows: list, dim: int) -> dict:
+    """The /exclusions columns of (step, time, id, cause, position, velocity, density) rows:
+    position and velocity (n, dim) as they were in the step that removed the row."""
+    vec = lambda k: np.array([r[k] for r in rows], float).reshape(len(rows), dim)
+    return {"step": np.array([r[0] for r in rows], np.int64),
+            "time": np.array([r[1] for r in rows], float),
+            "id": np.array([r[2] for r in rows], np.int64),
+            "cause": np.array([r[3] for r in rows], np.int8),
+            "position": vec(4), "velocity": vec(5),
+            "density": np.array([r[6] for r in rows], float)}
+
+
+def exclusion_rows(cols: dict, dim: int, keep=None) -> list:
+    """The rows of /exclusions columns (`keep`: a mask of the rows to take). Columns written
+    before position, velocity and density were recorded give NaN there."""
+    n = len(cols["step"])
+    keep = np.ones(n, bool) if keep is None else np.asarray(keep, bool)
+    nan = np.full((n, dim), np.nan)
+    pos = np.asarray(cols.get("position", nan), float).reshape(n, -1)
+    vel = np.asarray(cols.get("velocity", nan), float).reshape(n, -1)
+    rho = np.asarray(cols.get("density", nan[:, 0]), float)
+    return [(int(cols["step"][i]), float(cols["time"][i]), int(cols["id"][i]), int(cols["cause"][i]),
+             tuple(map(float, pos[i])), tuple(map(float, vel[i])), float(rho[i]))
+            for i in np.nonzero(keep)[0]]
 
 
 def exclusion_summary(rows: dict, n_fluid: int) -> str:

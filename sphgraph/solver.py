@@ -17,6 +17,7 @@ from .balance import BalanceConfig, Balancer
 from .cells import axis_order
 from .domain import MIN_SLAB_H, REACH_H, Slabs, choose_axis, equal_cuts, split
 from .errors import CAUSES, CommError, DiskFullError, InputError, NumericalError, SphgraphError
+from .features import exclusion_rows
 from .particles import in_id_order
 from .registry import get
 from .scene import Scene
@@ -544,8 +545,9 @@ def _write_balance(writer, sim) -> None:
 
 
 def _write_exclusions(writer, sim) -> None:
-    """/exclusions: every particle removed by [domain] exclude_outside (step, time, id, cause),
-    gathered from every rank (call on every rank), sorted by (step, id)."""
+    """/exclusions: every particle removed by [domain] exclude_outside (step, time, id, cause,
+    and its position, velocity and density then), gathered from every rank (call on every
+    rank), sorted by (step, id)."""
     if not sim.features.exclude_outside:
         return
     rows = sim.features.exclusions(sim)
@@ -565,8 +567,7 @@ def _keep_exclusions(out_dir, sim, step) -> None:
         return
     if len(d["step"]):
         keep = np.asarray(d["step"]) <= step
-        sim.features.excluded[:0] = [(int(a), float(b), int(c), int(e)) for a, b, c, e in
-                                     zip(d["step"][keep], d["time"][keep], d["id"][keep], d["cause"][keep])]
+        sim.features.excluded[:0] = exclusion_rows(d, sim.scene.dim, keep)
 
 
 def _write_timing(writer, sim) -> None:

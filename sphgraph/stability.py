@@ -222,7 +222,7 @@ def watch(sim, steps: int, every: int = 10, *, p_scale=None, noise_bound=None, d
             return Verdict("blow-up", f"{e.cause} at step {e.step}", step=e.step)
         ex = sim.features.excluded
         if ex:    # a scene with [domain] exclude_outside: a removed particle is the same failure
-            step, _, pid, cause = ex[0]
+            step, _, pid, cause = ex[0][:4]
             from .errors import CAUSES
             return Verdict("blow-up", f"{CAUSES[cause]} at step {step} (particle id {pid} excluded)", step=step)
         if k % every and k != steps:

@@ -33,6 +33,12 @@ def test_particles_leaving_the_domain_are_excluded_and_counted_on_1_and_3_ranks(
         rec = sim.features.exclusions(sim)
         assert len(ex) > 0 and np.array_equal(np.sort(rec["id"]), ex)
         assert np.all(rec["cause"] == 2)
+        # each row is recorded where it left: outside the domain, beyond the floor's end, falling
+        x, y = rec["position"].T
+        assert rec["position"].shape == (len(ex), 2) and rec["velocity"].shape == (len(ex), 2)
+        assert np.all((x < -0.1) | (x > 1.5) | (y < -0.06) | (y > 0.6)) and np.all(x > 0.8)
+        assert np.all(rec["velocity"][:, 1] < 0)
+        assert np.all((rec["density"] > 900) & (rec["density"] < 1100))
         assert len(a["id"]) + len(ex) == n0 and not np.intersect1d(a["id"], ex).size
         out[ranks] = (ex, a)
     assert np.array_equal(out[1][0], out[3][0])
@@ -49,7 +55,8 @@ def test_without_exclusion_leaving_is_fatal():
 
 
 def test_exclusions_are_written_to_output_the_same_on_1_and_3_ranks(tmp_path):
-    """/exclusions in output.h5 (step, time, id, cause): the same rows on 1 and 3 mock ranks."""
+    """/exclusions in output.h5 (step, time, id, cause, position, velocity, density): the same
+    rows on 1 and 3 mock ranks."""
     from sphgraph import run
     from sphgraph.io import read_group
     got = {}
@@ -64,11 +71,13 @@ def test_exclusions_are_written_to_output_the_same_on_1_and_3_ranks(tmp_path):
         assert np.array_equal(a[k], b[k]), k
     # dt is a global minimum, but 1 and 3 ranks differ at round-off, which this spill amplifies
     np.testing.assert_allclose(a["time"], b["time"], rtol=1e-5)
+    np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-4)
+    assert a["velocity"].shape == a["position"].shape == (len(a["id"]), 2)
     # a restart keeps the exclusions up to its checkpoint (they are not in the checkpoint) and
     # redoes the later ones: the exclusion at step 238 is kept, 243 and 251 are redone, none twice
     run(spill(), restart=tmp_path / "r1" / "checkpoints" / "ckpt_000000240.h5", max_steps=260, progress=False)
     c = read_group(tmp_path / "r1", "exclusions")
-    for k in ("step", "id", "cause", "time"):
+    for k in ("step", "id", "cause", "time", "position", "velocity", "density"):
         assert np.array_equal(c[k], a[k]), k
 
 
@@ -199,7 +208,7 @@ def test_exclusions_survive_a_sigkill_through_the_checkpoint(tmp_path):
     assert c.step == 240
     run(str(scene), restart=tmp_path / "o", max_steps=260, progress=False)
     got = read_group(tmp_path / "o", "exclusions")
-    for k in ("step", "time", "id", "cause"):
+    for k in ("step", "time", "id", "cause", "position", "velocity", "density"):
         assert got[k].dtype == ref[k].dtype and np.array_equal(got[k], ref[k]), (k, got[k], ref[k])
     assert got["attrs"]["count"] == len(ref["id"])
     assert np.array_equal(c.exclusions["id"], ref["id"][ref["step"] <= 240])   # from the checkpoint
@@ -294,3 +303,21 @@ def test_exclusion_on_numba_cuda_in_the_simulator():
     assert cpu["ids"] == gpu["ids"]
     np.testing.assert_allclose(gpu["pos"], cpu["pos"], rtol=0, atol=1e-12)
     np.testing.assert_allclose(gpu["rho"], cpu["rho"], rtol=0, atol=1e-9)
+
+
+def test_exclusion_columns_round_trip_and_read_the_older_four():
+    """/exclusions columns -> rows -> columns is the identity; columns written before position,
+    velocity and density were recorded (step, time, id, cause) read back with NaN there."""
+    from sphgraph.features import exclusion_columns, exclusion_rows
+    rows = [(3, 0.01, 7, 2, (0.5, -0.1), (0.2, -1.0), 1001.0), (5, 0.02, 9, 3, (0.1, 0.3), (0.0, 0.1), 1200.0)]
+    cols = exclusion_columns(rows, 2)
+    assert cols["position"].shape == (2, 2) and cols["density"].dtype == float
+    assert exclusion_rows(cols, 2) == rows
+    assert exclusion_rows(cols, 2, [False, True]) == rows[1:]
+    old = {k: cols[k] for k in ("step", "time", "id", "cause")}
+    back = exclusion_rows(old, 2)
+    assert [r[:4] for r in back] == [r[:4] for r in rows]
+    assert all(np.isnan(r[4]).all() and np.isnan(r[5]).all() and np.isnan(r[6]) for r in back)
+    mixed = exclusion_columns(back + rows, 2)      # a restart adds new rows to the older ones
+    assert mixed["position"].shape == (4, 2) and np.isnan(mixed["position"][:2]).all()
+    assert exclusion_columns([], 3)["position"].shape == (0, 3)
