@@ -372,8 +372,8 @@ def exclusion_rows(cols: dict, dim: int, keep=None) -> list:
     n = len(cols["step"])
     keep = np.ones(n, bool) if keep is None else np.asarray(keep, bool)
     nan = np.full((n, dim), np.nan)
-    pos = np.asarray(cols.get("position", nan), float).reshape(n, -1)
-    vel = np.asarray(cols.get("velocity", nan), float).reshape(n, -1)
+    pos = np.asarray(cols.get("position", nan), float).reshape(n, dim)
+    vel = np.asarray(cols.get("velocity", nan), float).reshape(n, dim)
     rho = np.asarray(cols.get("density", nan[:, 0]), float)
     return [(int(cols["step"][i]), float(cols["time"][i]), int(cols["id"][i]), int(cols["cause"][i]),
              tuple(map(float, pos[i])), tuple(map(float, vel[i])), float(rho[i]))

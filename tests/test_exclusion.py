@@ -320,4 +320,5 @@ def test_exclusion_columns_round_trip_and_read_the_older_four():
     assert all(np.isnan(r[4]).all() and np.isnan(r[5]).all() and np.isnan(r[6]) for r in back)
     mixed = exclusion_columns(back + rows, 2)      # a restart adds new rows to the older ones
     assert mixed["position"].shape == (4, 2) and np.isnan(mixed["position"][:2]).all()
-    assert exclusion_columns([], 3)["position"].shape == (0, 3)
+    empty = exclusion_columns([], 3)                 # a checkpoint before any exclusion
+    assert empty["position"].shape == (0, 3) and exclusion_rows(empty, 3) == []
