@@ -62,10 +62,12 @@ def plot(rows, path, case) -> None:
     for ax, g in zip(axes.ravel(), gauges):
         ax.plot(data[:, 0], data[:, int(g[3])], ".", ms=1.5, color="0.4", label=f"experiment (x = {g[1]} m)")
         for i, r in enumerate(rows):
-            if r.get("ok"):
+            if "series" in r:     # a run that stopped: its heights up to the stop, dashed
                 t, h = r["series"][g[0]]
                 err = r["metrics"][f"height_rms_err_m_{g[0]}"]
-                ax.plot(t, h, "-", lw=1.1, color=f"C{i}", label=f"{r['run']} (RMS {1000 * err:.0f} mm)")
+                what = (f"RMS {1000 * err:.0f} mm" if r.get("ok") else
+                        f"stopped at {r['t_stop']:.2f} s; RMS {1000 * err:.0f} mm to then")
+                ax.plot(t, h, "-" if r.get("ok") else "--", lw=1.1, color=f"C{i}", label=f"{r['run']} ({what})")
         ax.set_title(g[0], fontsize=9)
         ax.set_xlabel("t [s]")
         ax.set_ylabel("h [m]")
@@ -112,9 +114,10 @@ def main(argv=None) -> int:
                     help="no run: score the stored series of these --json files over 0-WINDOW s")
     ap.add_argument("--window", type=float, default=None, help="s, with --rescore")
     a = ap.parse_args(argv)
-    from sphgraph.validation.cases import load_case, run_case
+    from sphgraph.validation.cases import CaseStopped, load_case, run_case
     from sweep_rows import attempt, record
     case = load_case("spheric2")
+    gauges = case.params["gauges"]
     if a.rescore:
         return rescore(case, a.rescore, a.window)
     rows = []
@@ -124,12 +127,19 @@ def main(argv=None) -> int:
         row = {"run": key, "case": case.name, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default",
                "params": params, "overrides": overrides}
 
-        def one():
-            r = run_case(case, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
-                         overrides=overrides, plot=False)
+        def fields(r):
             return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
                         series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
                                 for k, v in r.series.items() if k.startswith("sphgraph ")})
+
+        def one(row=row):
+            try:
+                r = run_case(case, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
+                             overrides=overrides, plot=False)
+            except CaseStopped as e:    # the heights up to the stop, metrics over that window
+                row.update(fields(e.result), t_stop=float(e.result.series[f"sphgraph {gauges[0][0]}"][0][-1]))
+                raise
+            return fields(r)
         record(rows, attempt(row, one), a.json)
         if a.plot:
             plot(rows, a.plot, case)

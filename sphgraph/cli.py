@@ -440,14 +440,20 @@ def _overrides(items):
 
 
 def cmd_validate(args) -> int:
-    from .validation.cases import list_cases, load_case, run_case
+    from .validation.cases import CaseStopped, list_cases, load_case, run_case
     if args.list or not args.case:
         for name in list_cases():
             print(f"{name:12s} {load_case(name).title}")
         return 0
-    res = run_case(args.case, dp=args.dp, backend=args.backend, precision=args.precision,
-                   overrides=_overrides(args.set), out=args.out,
-                   params={"boundary": args.boundary} if args.boundary else None)
+    try:
+        res = run_case(args.case, dp=args.dp, backend=args.backend, precision=args.precision,
+                       overrides=_overrides(args.set), out=args.out,
+                       params={"boundary": args.boundary} if args.boundary else None)
+    except CaseStopped as e:    # what the run measured before it stopped, then the failure (exit 1)
+        print(e.result.report())
+        if e.result.plot_path:
+            print(f"wrote {e.result.plot_path}")
+        raise
     print(res.report())
     if res.plot_path:
         print(f"wrote {res.plot_path}")

@@ -461,6 +461,35 @@ def test_spheric2_heights_coarse():
     assert 0.0 < r.metrics["arrival_err_s_H3"] < 0.25, r.report()
 
 
+def test_a_heights_run_that_stops_reports_what_it_measured(tmp_path, capsys, monkeypatch):
+    """A water-heights run that stops numerically (a failure injected once t > 0.05 s) keeps
+    its gauges' series and metrics up to the stop (CaseStopped.result: not ok, the failure
+    named); `sphgraph validate` prints that report, draws it and exits 1 with the failure."""
+    from sphgraph.errors import NumericalError
+    from sphgraph.solver import Simulation
+    from sphgraph.validation.cases import CaseStopped
+    orig = Simulation.step
+
+    def failing(self, *a, **k):
+        if self.time > 0.05:
+            raise NumericalError(f"step {self.step_count}: injected failure", step=self.step_count)
+        return orig(self, *a, **k)
+    monkeypatch.setattr(Simulation, "step", failing)
+    case = tmp_path / "s2.toml"
+    case.write_text(load_case("spheric2").text.replace("t_end = 6.0 ", "t_end = 0.3 "))
+    with pytest.raises(CaseStopped, match="injected failure") as ei:
+        run_case(str(case), dp=0.1, plot=False)
+    r = ei.value.result
+    t, h, *_ = r.series["sphgraph H4"]
+    assert 0.04 <= t[-1] <= 0.06 and len(t) >= 5, t
+    assert not r.ok and "injected failure" in r.stopped and "STOPPED: step" in r.report()
+    assert r.metrics["height_rms_err_m_H1"] < 0.002 and abs(h[0] - 0.55) < 0.1
+    assert main(["validate", str(case), "--dp", "0.1", "--out", str(tmp_path / "o")]) == 1
+    out = capsys.readouterr()
+    assert "STOPPED: step" in out.out and "numerical failure: step" in out.err
+    assert (tmp_path / "o" / "spheric2.png").stat().st_size > 1000
+
+
 def test_walls_drawn_on_the_domain_face_stay_in_the_run():
     """examples/spheric2.toml at dp 0.04 draws its outer tank layer on domain.max (3.22 + 3 dp =
     3.32): the end-of-step check must not exclude it for the rounding of its position."""

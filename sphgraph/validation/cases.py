@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, NumericalError
 from . import load, surge_front
 
 G = 9.81
@@ -78,6 +78,17 @@ def load_case(name: str) -> Case:
                 tolerances=d.get("tolerances", {}), text=text)
 
 
+class CaseStopped(NumericalError):
+    """A validation run that stopped numerically; `result` is the `CaseResult` over the time
+    it reached (metrics, series, the stop in `stopped`), for the runners that sample as they
+    go (water heights). The run still fails: the CLI exits 1 with the failure."""
+
+    def __init__(self, e: NumericalError, partial: tuple):
+        super().__init__(str(e), step=e.step, particle_id=e.particle_id, cause=e.cause)
+        self.partial = partial          # (metrics, series, stats, notes) of the runner
+        self.result = None              # the CaseResult, set by run_case
+
+
 @dataclass
 class CaseResult:
     case: str
@@ -91,10 +102,11 @@ class CaseResult:
     config: dict
     notes: list = field(default_factory=list)
     plot_path: str | None = None
+    stopped: str | None = None        # the numerical failure a partial result stopped at
 
     @property
     def ok(self) -> bool:
-        return all(c[4] for c in self.checks)
+        return self.stopped is None and all(c[4] for c in self.checks)
 
     def report(self) -> str:
         lines = [f"case {self.case} at dp = {self.dp:g}: {self.particles} particles, {self.steps} steps, "
@@ -107,6 +119,8 @@ class CaseResult:
             else:
                 lines.append(f"  {k:42s} {v: .4g}")
         lines += [f"  note: {n}" for n in self.notes]
+        if self.stopped is not None:
+            lines.append(f"  STOPPED: {self.stopped} (the metrics above are over the time reached)")
         lines.append("PASS" if self.ok else "FAIL")
         return "\n".join(lines)
 
@@ -120,8 +134,13 @@ def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-
     dp = float(dp) if dp is not None else case.dp
     prm = dict(case.params, **(params or {}))
     t0 = time.perf_counter()
-    metrics, series, stats, notes = RUNNERS[case.runner](case, dp, prm, backend=backend, precision=precision,
-                                                         overrides=dict(overrides or {}))
+    stopped = None
+    try:
+        metrics, series, stats, notes = RUNNERS[case.runner](case, dp, prm, backend=backend, precision=precision,
+                                                             overrides=dict(overrides or {}))
+    except CaseStopped as e:
+        stopped = e
+        metrics, series, stats, notes = e.partial
     wall = time.perf_counter() - t0
     checks = []
     for k, (lo, hi) in case.tolerances.items():
@@ -130,11 +149,15 @@ def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-
     cfg = {"backend": backend, "precision": precision or "default"}
     cfg.update(overrides or {})
     res = CaseResult(case=case.name, dp=dp, metrics=metrics, checks=checks, series=series, wall_s=wall,
-                     steps=stats["steps"], particles=stats["particles"], config=cfg, notes=notes)
+                     steps=stats["steps"], particles=stats["particles"], config=cfg, notes=notes,
+                     stopped=None if stopped is None else str(stopped))
     if plot and out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         from ..plots import plot_validation
         res.plot_path = plot_validation(res, case.title, Path(out) / f"{case.name}.png")
+    if stopped is not None:
+        stopped.result = res
+        raise stopped
     return res
 
 
@@ -462,12 +485,22 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
     scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["t_end"]),
                       layers=prm.get("layers"))
     gauges = prm["gauges"]                         # [[name, x, y, data column], ...]
-    floor = float(prm.get("floor", 0.0))
     spec = {"interval": float(prm["dt_sample"]), "points": [], "bodies": [], "force_interval": 0.0,
             "heights": [(str(g[0]), np.array(g[1:3], float)) for g in gauges]}
     sampler = ProbeSampler(scene, spec)
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
-    _run_sampled(sim, sampler, scene.end_time)
+    try:
+        _run_sampled(sim, sampler, scene.end_time)
+    except NumericalError as e:     # the heights up to the stop, scored up to the last sample
+        last = float(sampler.series(str(gauges[0][0]), "height")[0][-1])
+        raise CaseStopped(e, _heights_result(case, prm, sampler, sim, last)) from e
+    return _heights_result(case, prm, sampler, sim, sim.time)
+
+
+def _heights_result(case, prm, sampler, sim, t_end):
+    """run_water_heights' (metrics, series, stats, notes) from the heights sampled up to t_end."""
+    gauges = prm["gauges"]
+    floor = float(prm.get("floor", 0.0))
     data, _ = load(case.reference["dataset"])
     h0 = float(prm["h0"])
     thr = float(prm.get("arrival_h", 0.02))
@@ -479,8 +512,8 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
         # floor's height is the gauge's zero
         series[f"sphgraph {name}"] = (t, np.maximum(z - floor, 0.0), "-", name)
         series[f"experiment {name} (x = {g[1]})"] = (data[:, 0], data[:, col], ".", name)
-    metrics = height_metrics(prm, data, {str(g[0]): series[f"sphgraph {g[0]}"][:2] for g in gauges}, sim.time)
-    w = data[data[:, 0] <= sim.time + 1e-12]
+    metrics = height_metrics(prm, data, {str(g[0]): series[f"sphgraph {g[0]}"][:2] for g in gauges}, t_end)
+    w = data[data[:, 0] <= t_end + 1e-12]
     notes = [f"gauges (name, x, y): {', '.join(f'{g[0]} ({g[1]}, {g[2]})' for g in gauges)}; height = highest "
              "point of the vertical line where the fluid's kernel sum reaches 0.5 (sphgraph.probes), less the "
              f"floor at z = {floor}; sampled every {prm['dt_sample']} s, compared at the data's times over "
