@@ -559,8 +559,10 @@ def plot_validation(result, title: str, path) -> str:
         else:
             ax.plot(x, y, style, lw=1.4, label=label, color=color)
     worst = [c for c in result.checks if not c[4]]
-    fig.suptitle(f"{title}\ndp = {result.dp:g}: {'PASS' if result.ok else 'FAIL ' + ', '.join(c[0] for c in worst)}",
-                 fontsize=9)
+    verdict = 'PASS' if result.ok else 'FAIL ' + ', '.join(c[0] for c in worst)
+    if result.stopped is not None:   # a run that stopped: its series end there
+        verdict = f"STOPPED ({result.stopped[:90]})"
+    fig.suptitle(f"{title}\ndp = {result.dp:g}: {verdict}", fontsize=9)
     for ax in axes[:len(panels)]:
         ax.legend(fontsize=7)
         ax.grid(alpha=0.3)
