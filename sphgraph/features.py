@@ -382,11 +382,16 @@ def exclusion_rows(cols: dict, dim: int, keep=None) -> list:
 
 def exclusion_summary(rows: dict, n_fluid: int) -> str:
     """One line for the end of a run: how many particles were excluded, their share of the
-    fluid and the count by cause (`rows`: the /exclusions columns)."""
+    fluid, the count by cause, the steps and the box their positions span -- where to look for
+    the leak (`rows`: the /exclusions columns)."""
     from .errors import CAUSES
     n = len(rows["id"])
     causes, counts = np.unique(np.asarray(rows["cause"]), return_counts=True)
     by = ", ".join(f"{k} {CAUSES[int(c)]}" for c, k in zip(causes, counts))
     span = f", steps {int(rows['step'][0])}-{int(rows['step'][-1])}" if n else ""
+    pos = np.asarray(rows.get("position", np.empty((0, 1))), float)
+    pos = pos[np.isfinite(pos).all(axis=1)] if pos.ndim == 2 else pos[:0]
+    where = ("; at " + ", ".join(f"{'xyz'[a]} {pos[:, a].min():.4g}..{pos[:, a].max():.4g}"
+                                 for a in range(pos.shape[1])) + " m") if len(pos) else ""
     return (f"excluded {n} particles ({100.0 * n / max(n_fluid, 1):.3g} % of {n_fluid} fluid"
-            + (f"; {by}" if n else "") + f"{span})")
+            + (f"; {by}" if n else "") + f"{span}{where})")

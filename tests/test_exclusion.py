@@ -254,6 +254,7 @@ def test_cli_summary_of_exclusions_and_exit_1_past_the_share(tmp_path, capsys):
     assert main(["run", str(f), "--out", str(tmp_path / "a"), "--max-steps", "260", "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "sphgraph: excluded" in err and "particle left the domain" in err and "% of 600 fluid" in err
+    assert "; at x " in err and ", y " in err       # the box the excluded rows' positions span
     f.write_text(dumps_toml(spill_default().to_dict()))
     assert main(["run", str(f), "--out", str(tmp_path / "b"), "--max-steps", "260", "--quiet"]) == 1
     assert "numerical failure" in capsys.readouterr().err
@@ -320,5 +321,9 @@ def test_exclusion_columns_round_trip_and_read_the_older_four():
     assert all(np.isnan(r[4]).all() and np.isnan(r[5]).all() and np.isnan(r[6]) for r in back)
     mixed = exclusion_columns(back + rows, 2)      # a restart adds new rows to the older ones
     assert mixed["position"].shape == (4, 2) and np.isnan(mixed["position"][:2]).all()
+    from sphgraph.features import exclusion_summary
+    line = exclusion_summary(cols, 100)
+    assert line.endswith("steps 3-5; at x 0.1..0.5, y -0.1..0.3 m)"), line
+    assert "; at" not in exclusion_summary(old, 100)     # no positions recorded: no box
     empty = exclusion_columns([], 3)                 # a checkpoint before any exclusion
     assert empty["position"].shape == (0, 3) and exclusion_rows(empty, 3) == []
