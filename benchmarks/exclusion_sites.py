@@ -6,7 +6,8 @@ and boxes, counted by face and cause, and drawn over the geometry.
         --run zhang-mdbc4-renorm-cancel --json $OUT/sites.json --plot $OUT/sites.png
 
 The run is `benchmarks/spheric2_heights.py`'s (`--run`: one of its RUNS) to `--t-end` or to
-its exclusion stop, stepped as the validation case steps it (no output files). The report is
+its exclusion stop, stepped as the validation case steps it (no output files); `--json` is
+rewritten at every 0.5 s of simulated time, so a run cut short keeps its rows. The report is
 what was measured: per face, the rows that left through it or next to it, their mean speed
 and the signed distance from the face into the fluid's side (negative: through the wall).
 """
@@ -114,29 +115,38 @@ def main(argv=None) -> int:
     scene = scene_for(case, a.dp, overrides, boundary=params.get("boundary"), end_time=end,
                       layers=params.get("layers"))
     sim = _sim(scene, a.backend, a.precision, boundary=params.get("boundary", "dbc"))
-    t0, failure, mark = time.perf_counter(), None, 0.5
+    sd = case.scene             # the geometry's faces: a layers override leaves them where they are
+    fcs = faces(sd)
+    t0 = time.perf_counter()
+
+    def save(failure, quiet):
+        """The rows so far, their sites and the run's state: at the end, and at each 0.5 s
+        mark (a run cut short by a time limit keeps what it recorded)."""
+        cols = sim.features.exclusions(sim)
+        out = {"run": a.run, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default",
+               "t": sim.time, "steps": sim.step_count, "particles": sim.n_total, "fluid": sim.n_fluid,
+               "wall_s": time.perf_counter() - t0, "failure": failure, "excluded": len(cols["id"]),
+               "sites": report(cols, fcs, a.dp) if len(cols["id"]) else [],
+               "rows": {k: np.asarray(v).tolist() for k, v in cols.items()}}
+        if not quiet:
+            print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=1), flush=True)
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(out, f)
+        return cols
+
+    failure, mark = None, 0.5
     try:
         while sim.time < end:
             sim.step()
             if sim.time >= mark:
                 print(f"t = {sim.time:.3f} s, step {sim.step_count}, excluded {len(sim.features.excluded)}",
                       flush=True)
+                save(None, quiet=True)
                 mark += 0.5
     except NumericalError as e:
         failure = str(e)
-    wall = time.perf_counter() - t0
-    cols = sim.features.exclusions(sim)
-    sd = case.scene             # the geometry's faces: a layers override leaves them where they are
-    fcs = faces(sd)
-    sites = report(cols, fcs, a.dp) if len(cols["id"]) else []
-    out = {"run": a.run, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default",
-           "t": sim.time, "steps": sim.step_count, "particles": sim.n_total, "fluid": sim.n_fluid,
-           "wall_s": wall, "failure": failure, "excluded": len(cols["id"]), "sites": sites,
-           "rows": {k: np.asarray(v).tolist() for k, v in cols.items()}}
-    print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=1), flush=True)
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(out, f)
+    cols = save(failure, quiet=False)
     if a.plot and len(cols["id"]):
         plot(cols, sd, a.plot, f"{a.run}, dp {a.dp}, {a.backend}: {len(cols['id'])} rows excluded by "
                                f"t = {sim.time:.3f} s" + (" (stopped)" if failure else ""))
