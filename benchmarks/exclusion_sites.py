@@ -48,7 +48,7 @@ def nearest_face(pos: np.ndarray, fcs: list) -> tuple[np.ndarray, np.ndarray]:
         q[:, a] = x
         dist[:, j] = np.linalg.norm(pos - q, axis=1)
         signed[:, j] = side * (pos[:, a] - x)
-    j = np.argmin(dist, axis=1) if len(fcs) else np.zeros(len(pos), int)
+    j = np.argmin(dist, axis=1)
     return j, signed[np.arange(len(pos)), j]
 
 

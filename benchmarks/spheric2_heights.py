@@ -79,6 +79,13 @@ def plot(rows, path, case) -> None:
     fig.savefig(path, dpi=120)
 
 
+def fields(r) -> dict:
+    """A run's row fields from its CaseResult: metrics, counts and the simulated height series."""
+    return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
+                series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
+                        for k, v in r.series.items() if k.startswith("sphgraph ")})
+
+
 def rescore(case, paths, window) -> int:
     """One JSON line a stored run that has its series: the case's metrics over 0-window s (a run
     that stopped or was cut short at t_end is compared with the others over its own length)."""
@@ -126,11 +133,6 @@ def main(argv=None) -> int:
         params = dict(params, **({"t_end": a.t_end} if a.t_end else {}))
         row = {"run": key, "case": case.name, "dp": a.dp, "backend": a.backend, "precision": a.precision or "default",
                "params": params, "overrides": overrides}
-
-        def fields(r):
-            return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
-                        series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
-                                for k, v in r.series.items() if k.startswith("sphgraph ")})
 
         def one(row=row):
             try:

@@ -389,8 +389,8 @@ def exclusion_summary(rows: dict, n_fluid: int) -> str:
     causes, counts = np.unique(np.asarray(rows["cause"]), return_counts=True)
     by = ", ".join(f"{k} {CAUSES[int(c)]}" for c, k in zip(causes, counts))
     span = f", steps {int(rows['step'][0])}-{int(rows['step'][-1])}" if n else ""
-    pos = np.asarray(rows.get("position", np.empty((0, 1))), float)
-    pos = pos[np.isfinite(pos).all(axis=1)] if pos.ndim == 2 else pos[:0]
+    pos = np.asarray(rows.get("position", np.empty((0, 1))), float)    # (n, dim); none in older outputs
+    pos = pos[np.isfinite(pos).all(axis=1)]
     where = ("; at " + ", ".join(f"{'xyz'[a]} {pos[:, a].min():.4g}..{pos[:, a].max():.4g}"
                                  for a in range(pos.shape[1])) + " m") if len(pos) else ""
     return (f"excluded {n} particles ({100.0 * n / max(n_fluid, 1):.3g} % of {n_fluid} fluid"

@@ -618,8 +618,8 @@ def plot_study(rows: list, path, title: str = "", error_key: str = "error",
     ax.set_yscale("log")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(error_key.replace("_", " "))
-    stopped = f"  ({len(failed)} run{'s' * (len(failed) != 1)} failed)" if failed else ""
-    ax.set_title((title or "error against cost") + stopped, fontsize=9)
+    failed_note = f"  ({len(failed)} run{'s' * (len(failed) != 1)} failed)" if failed else ""
+    ax.set_title((title or "error against cost") + failed_note, fontsize=9)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(0.0, -0.12), ncol=1, frameon=False)
     return _save(fig, path)
