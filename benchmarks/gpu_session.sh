@@ -302,6 +302,12 @@ print(1 if v['fv:56:128:u1']['median_ms'] < v['fv:56:128:u2']['median_ms'] else 
     sites-s2-renorm-cancel) stage sites_s2_renorm_cancel 330 python3 benchmarks/exclusion_sites.py \
                 --backend numba-cuda --dp 0.02 --t-end 3.6 --run zhang-mdbc4-renorm-cancel \
                 --json "$OUT/sites_s2_renorm_cancel.json" --plot "$OUT/sites_s2_renorm_cancel.png" ;;
+    # SPHERIC 2's box pressures (the eight sensors, sphgraph.validation.sensors) beside its heights:
+    # DualSPHysics' formulation and the runs closest to the heights (docs/validation.md)
+    s2p-a) stage s2p_a 560 python3 benchmarks/spheric2_heights.py --backend numba-cuda --precision float32 \
+                --dp 0.02 --runs dsph,zhang-noslip4-cancel,mdbc4 --json "$OUT/s2p_a.json" --plot "$OUT/s2p_a.png" ;;
+    s2p-b) stage s2p_b 560 python3 benchmarks/spheric2_heights.py --backend numba-cuda --precision float32 \
+                --dp 0.02 --runs zhang-mdbc4-cancel,noslip4,zhang --json "$OUT/s2p_b.json" --plot "$OUT/s2p_b.png" ;;
     tests-rjump) stage tests_rjump 240 python3 -m pytest -q -m gpu -p no:cacheprovider -rs \
                 tests/test_cuda_riemann_jump.py tests/test_cuda_riemann.py ;;
     *) echo "unknown stage $s"; exit 2 ;;

@@ -7,9 +7,10 @@ Kleefsman et al. 2005's measurements, DualSPHysics' formulation beside the optio
 
 Each run is the validation case as `sphgraph validate spheric2` runs it (`run_case`: the
 `[probes] heights` sampler every 0.01 s, compared at the data's times over 0-6 s with no
-time shift). One JSON line per run as it finishes (metrics, particles, steps, wall seconds,
-compile included); `--json` also holds each run's height series, `--plot` draws every run
-against the data, one panel a gauge. A run that fails numerically is recorded with its
+time shift, and the eight pressure sensors on the box every 2 ms, sphgraph.validation.sensors).
+One JSON line per run as it finishes (metrics, particles, steps, wall seconds, compile
+included); `--json` also holds each run's series, `--plot` draws every run against the data,
+one panel a gauge or a sensor (pressures as running means over the case's smooth_peak_t). A run that fails numerically is recorded with its
 failure and the sweep goes on. `--rescore FILE... --window T` runs nothing: it scores the stored
 series of earlier `--json` files over 0-T s (the case's metrics, `cases.height_metrics`), so that
 a run cut short at `--t-end` compares with full runs over the same window.
@@ -51,14 +52,22 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
                                   "laminar_nu": 1e-6})}
 
 
+SENSORS = {"P1", "P2", "P3", "P4", "P5", "P6", "P7", "P8"}     # the case's pressure sensors
+
+
 def plot(rows, path, case) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
     from sphgraph.validation import load
+    from sphgraph.validation.sensors import running_mean
     data, _ = load(case.reference["dataset"])
-    gauges = case.params["gauges"]
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7.5))
+    pdata, _ = load(case.reference["pressures"])
+    prm = case.params
+    gauges, sensors = prm["gauges"], prm["sensors"]
+    w, dt = float(prm["smooth_peak_t"]), float(prm["dt_sample_p"])
+    fig, axes = plt.subplots(4, 3, figsize=(16, 13))
     for ax, g in zip(axes.ravel(), gauges):
         ax.plot(data[:, 0], data[:, int(g[3])], ".", ms=1.5, color="0.4", label=f"experiment (x = {g[1]} m)")
         for i, r in enumerate(rows):
@@ -69,21 +78,42 @@ def plot(rows, path, case) -> None:
                         f"stopped at {r['t_stop']:.2f} s; RMS {1000 * err:.0f} mm to then")
                 ax.plot(t, h, "-" if r.get("ok") else "--", lw=1.1, color=f"C{i}", label=f"{r['run']} ({what})")
         ax.set_title(g[0], fontsize=9)
-        ax.set_xlabel("t [s]")
         ax.set_ylabel("h [m]")
+    # the box's sensors: both series as running means over smooth_peak_t (the metrics' filters)
+    tg = np.arange(0.0, pdata[-1, 0], dt)
+    for ax, s in zip(axes.ravel()[len(gauges):], sensors):
+        pd = running_mean(np.interp(tg, pdata[:, 0], pdata[:, int(s[5])]), w, dt)
+        ax.plot(tg, pd / 1000.0, "-", lw=0.8, color="0.4", label="experiment")
+        for i, r in enumerate(rows):
+            if s[0] in r.get("series", {}):
+                t, p = (np.asarray(v, float) for v in r["series"][s[0]])
+                err = r["metrics"].get(f"p_rms_err_kPa_{s[0]}", float("nan"))
+                ax.plot(t, running_mean(p, w, dt), "-" if r.get("ok") else "--", lw=0.9, color=f"C{i}",
+                        label=f"{r['run']} (level RMS {err:.2f} kPa)")
+        ax.set_title(f"{s[0]} ({'front face' if s[4] == 'x+' else 'top'}, z = {s[3]} m, x = {s[1]} m), "
+                     f"running mean {1000 * w:.0f} ms", fontsize=9)
+        ax.set_ylabel("p [kPa]")
+    for ax in axes.ravel():
+        ax.set_xlabel("t [s]")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=6)
     r0 = rows[0]
-    fig.suptitle(f"SPHERIC test 2 water heights, dp = {r0['dp']} ({r0['backend']}, {r0['precision']})", fontsize=10)
+    fig.suptitle(f"SPHERIC test 2, water heights and box pressures, dp = {r0['dp']} ({r0['backend']}, "
+                 f"{r0['precision']})", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=110)
 
 
 def fields(r) -> dict:
-    """A run's row fields from its CaseResult: metrics, counts and the simulated height series."""
-    return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s,
-                series={k.split()[1]: [list(map(float, v[0])), list(map(float, v[1]))]
-                        for k, v in r.series.items() if k.startswith("sphgraph ")})
+    """A run's row fields from its CaseResult: metrics, counts and the simulated series (heights in m,
+    the box's pressures in Pa as sampled: the case's series hold them in kPa)."""
+    series = {}
+    for k, v in r.series.items():
+        if k.startswith("sphgraph "):
+            name = k.split()[1]
+            scale = 1000.0 if name in SENSORS else 1.0
+            series[name] = [list(map(float, v[0])), list(map(float, scale * v[1]))]
+    return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s, series=series)
 
 
 def rescore(case, paths, window) -> int:
@@ -92,7 +122,9 @@ def rescore(case, paths, window) -> int:
     import json
     from sphgraph.validation import load
     from sphgraph.validation.cases import height_metrics
+    from sphgraph.validation.sensors import pressure_metrics
     data, _ = load(case.reference["dataset"])
+    pdata, _ = load(case.reference["pressures"])
     for path in paths:
         with open(path) as f:
             for r in json.load(f):
@@ -103,6 +135,10 @@ def rescore(case, paths, window) -> int:
                     print(json.dumps({"file": path, "run": r["run"], "skipped": f"its series end at {last:.2f} s"}))
                     continue
                 m = height_metrics(case.params, data, r["series"], last if window is None else window)
+                if SENSORS <= set(r["series"]):     # runs stored before the box's sensors have none
+                    rho0 = float(case.scene.get("physics", {}).get("rho0", 1000.0))
+                    m.update(pressure_metrics(case.params, pdata, r["series"], last if window is None else window,
+                                              rho0))
                 print(json.dumps({"file": path, "run": r["run"], "dp": r["dp"], "window_s": window or last,
                                   "metrics": m}), flush=True)
     return 0

@@ -209,13 +209,16 @@ def _arrays(sim):
     return sim.frame_arrays()
 
 
-def _run_sampled(sim, sampler, end_time: float) -> None:
-    """Step `sim` to `end_time`, sampling at t = 0 and whenever the sampler is due."""
-    sampler.sample(sim)
+def _run_sampled(sim, samplers, end_time: float) -> None:
+    """Step `sim` to `end_time`, sampling at t = 0 and whenever a sampler (one or a list) is due."""
+    samplers = samplers if isinstance(samplers, list) else [samplers]
+    for s in samplers:
+        s.sample(sim)
     while sim.time < end_time - 1e-12:
         sim.step()
-        if sampler.due(sim.time):
-            sampler.sample(sim)
+        for s in samplers:
+            if s.due(sim.time):
+                s.sample(sim)
 
 
 def rel_errors(sim_T, sim_Z, ref_T, ref_Z):
@@ -480,25 +483,35 @@ def height_metrics(prm, data, heights, t_end):
 
 def run_water_heights(case, dp, prm, backend, precision, overrides):
     """Water height gauges (`[probes] heights`) against measured height histories, one dataset
-    column a gauge, compared at the data's times with no time shift."""
+    column a gauge, compared at the data's times with no time shift; with `[params] sensors`,
+    also pressure sensors on a body's faces against `[reference] pressures`
+    (sphgraph.validation.sensors), sampled every `dt_sample_p` s by a second sampler."""
     from ..probes import ProbeSampler
+    from .sensors import sensor_points
     scene = scene_for(case, dp, overrides, boundary=prm.get("boundary"), end_time=float(prm["t_end"]),
                       layers=prm.get("layers"))
     gauges = prm["gauges"]                         # [[name, x, y, data column], ...]
     spec = {"interval": float(prm["dt_sample"]), "points": [], "bodies": [], "force_interval": 0.0,
             "heights": [(str(g[0]), np.array(g[1:3], float)) for g in gauges]}
-    sampler = ProbeSampler(scene, spec)
+    samplers = [ProbeSampler(scene, spec)]
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
+    points = []
+    if prm.get("sensors"):
+        a = _arrays(sim)
+        points = sensor_points(prm, np.asarray(a["position"]), np.asarray(a["kind"]), dp)
+        samplers.append(ProbeSampler(scene, {"interval": float(prm["dt_sample_p"]), "points": points,
+                                             "heights": [], "bodies": [], "force_interval": 0.0}))
     try:
-        _run_sampled(sim, sampler, scene.end_time)
+        _run_sampled(sim, samplers, scene.end_time)
     except NumericalError as e:     # the heights up to the stop, scored up to the last sample
-        last = float(sampler.series(str(gauges[0][0]), "height")[0][-1])
-        raise CaseStopped(e, _heights_result(case, prm, sampler, sim, last)) from e
-    return _heights_result(case, prm, sampler, sim, sim.time)
+        last = float(samplers[0].series(str(gauges[0][0]), "height")[0][-1])
+        raise CaseStopped(e, _heights_result(case, prm, samplers, points, sim, last)) from e
+    return _heights_result(case, prm, samplers, points, sim, sim.time)
 
 
-def _heights_result(case, prm, sampler, sim, t_end):
-    """run_water_heights' (metrics, series, stats, notes) from the heights sampled up to t_end."""
+def _heights_result(case, prm, samplers, points, sim, t_end):
+    """run_water_heights' (metrics, series, stats, notes) from what was sampled up to t_end."""
+    from .sensors import pressure_metrics, pressure_series
     gauges = prm["gauges"]
     floor = float(prm.get("floor", 0.0))
     data, _ = load(case.reference["dataset"])
@@ -507,7 +520,7 @@ def _heights_result(case, prm, sampler, sim, t_end):
     series = {}
     for g in gauges:
         name, col = str(g[0]), int(g[3])
-        t, z = sampler.series(name, "height")
+        t, z = samplers[0].series(name, "height")
         # a column with no fluid over it reads the domain's floor (sphgraph.probes): the tank
         # floor's height is the gauge's zero
         series[f"sphgraph {name}"] = (t, np.maximum(z - floor, 0.0), "-", name)
@@ -518,6 +531,16 @@ def _heights_result(case, prm, sampler, sim, t_end):
              "point of the vertical line where the fluid's kernel sum reaches 0.5 (sphgraph.probes), less the "
              f"floor at z = {floor}; sampled every {prm['dt_sample']} s, compared at the data's times over "
              f"0-{w[-1, 0]:.2f} s; arrival = first time above {thr} m; rel_h0: over the initial depth {h0} m"]
+    if points:
+        pdata, _ = load(case.reference["pressures"])
+        sampled = {name: samplers[1].series(name, "pressure") for name, _ in points}
+        metrics.update(pressure_metrics(prm, pdata, sampled, t_end, sim.scene.physics.rho0))
+        series.update(pressure_series(prm, pdata, points, sampled))
+        notes.append(f"pressure sensors: a point probe {prm.get('probe_offset_dp', 2.0)} dp off the body's outer "
+                     f"rows, sampled every {prm['dt_sample_p']} s; level = running mean over {prm.get('smooth_t', 0.1)}"
+                     f" s of both series; impact = first running mean over {prm.get('smooth_peak_t', 0.02)} s above "
+                     f"{prm.get('impact_p', 1000.0)} Pa; first peak = its largest within {prm.get('first_peak_t', 0.1)}"
+                     " s of each series' own impact (sphgraph.validation.sensors)")
     return metrics, series, {"steps": sim.step_count, "particles": sim.n_total}, notes
 
 
