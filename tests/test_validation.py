@@ -459,6 +459,12 @@ def test_spheric2_heights_coarse():
     t, h, *_ = r.series["sphgraph H4"]
     assert abs(h[0] - 0.55) < 0.1 and t[0] == 0.0
     assert 0.0 < r.metrics["arrival_err_s_H3"] < 0.25, r.report()
+    # the box's eight pressure sensors, sampled every 2 ms by their own sampler: the top's stay
+    # dry as the data's do before 1 s, the front face's read the impact the data see at 0.39 s
+    t, p, *_ = r.series["sphgraph P1"]
+    assert np.allclose(np.diff(t), 0.002, atol=1e-3) and t[-1] > 0.39
+    assert all(r.metrics[f"p_rms_err_kPa_P{k}"] < 0.05 for k in (5, 6, 7, 8)), r.report()
+    assert "impact_t_data_s_P1" in r.metrics and np.isfinite(r.metrics["p_rms_err_rel_rhogh0_all"])
 
 
 def test_a_heights_run_that_stops_reports_what_it_measured(tmp_path, capsys, monkeypatch):
