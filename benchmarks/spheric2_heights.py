@@ -88,7 +88,7 @@ def plot(rows, path, case) -> None:
             if s[0] in r.get("series", {}):
                 t, p = (np.asarray(v, float) for v in r["series"][s[0]])
                 err = r["metrics"].get(f"p_rms_err_kPa_{s[0]}", float("nan"))
-                ax.plot(t, running_mean(p, w, dt), "-" if r.get("ok") else "--", lw=0.9, color=f"C{i}",
+                ax.plot(t, running_mean(p, w, dt) / 1000.0, "-" if r.get("ok") else "--", lw=0.9, color=f"C{i}",
                         label=f"{r['run']} (level RMS {err:.2f} kPa)")
         ax.set_title(f"{s[0]} ({'front face' if s[4] == 'x+' else 'top'}, z = {s[3]} m, x = {s[1]} m), "
                      f"running mean {1000 * w:.0f} ms", fontsize=9)
@@ -156,6 +156,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rescore", nargs="+", default=None, metavar="JSON",
                     help="no run: score the stored series of these --json files over 0-WINDOW s")
     ap.add_argument("--window", type=float, default=None, help="s, with --rescore")
+    ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
+                    help="no run: draw the stored runs of these --json files into --plot")
     a = ap.parse_args(argv)
     from sphgraph.validation.cases import CaseStopped, load_case, run_case
     from sweep_rows import attempt, record
@@ -163,6 +165,11 @@ def main(argv=None) -> int:
     gauges = case.params["gauges"]
     if a.rescore:
         return rescore(case, a.rescore, a.window)
+    if a.replot:
+        import json
+        rows = [r for path in a.replot for r in json.load(open(path))]
+        plot(rows, a.plot, case)
+        return 0
     rows = []
     for key in a.runs.split(","):
         params, overrides = RUNS[key]
