@@ -78,3 +78,14 @@ def test_the_probes_stand_off_the_box_rows_along_each_face(dp):
     assert abs(x_face - 0.8245) <= 0.5 * dp and abs(z_top - 0.161) <= 0.5 * dp     # the lattice's nearest
     assert np.allclose(pts["P1"], [x_face + 2 * dp, 0.471, 0.021])
     assert np.allclose(pts["P8"], [0.6835, 0.471, z_top + 2 * dp])
+
+
+def test_a_sensor_on_an_unknown_face_or_a_body_without_rows_is_named():
+    from sphgraph.errors import InputError
+    pos = np.array([[0.8, 0.5, 0.1], [0.7, 0.5, 0.16]])
+    kind = np.array([1, 1])
+    bad = dict(PRM, sensors=[["P1", 0.8245, 0.471, 0.021, "x", 1]])
+    with pytest.raises(InputError, match=r"params.sensors\[0\]: face: expected one of x\+"):
+        sensor_points(bad, pos, kind, 0.02)
+    with pytest.raises(InputError, match="params.sensor_body: expected a box around boundary rows"):
+        sensor_points(PRM, pos, 0 * kind, 0.02)

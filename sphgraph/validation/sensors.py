@@ -1,7 +1,7 @@
 """Pressure sensors on a body's faces against a measured pressure history (SPHERIC test 2's box).
 
 A case lists its sensors in `[params] sensors` as ``[name, x, y, z, face, data column]``,
-``face`` one of ``"x+"``, ``"x-"``, ``"y+"``, ``"y-"``, ``"z+"`` (the outward normal of the face
+``face`` one of ``"x+"``, ``"x-"``, ``"y+"``, ``"y-"``, ``"z+"``, ``"z-"`` (the outward normal of the face
 the sensor sits on), and the body as ``sensor_body = [[min], [max]]``. The sensor is read by a
 `[probes]` point (Shepard interpolation of the fluid, sphgraph.probes) put `probe_offset_dp`
 particle spacings off the body's outermost boundary rows along that normal, as the Buchner case
@@ -26,7 +26,9 @@ import math
 
 import numpy as np
 
-FACES = {"x+": (0, 1.0), "x-": (0, -1.0), "y+": (1, 1.0), "y-": (1, -1.0), "z+": (2, 1.0)}
+from ..errors import InputError
+
+FACES = {"x+": (0, 1.0), "x-": (0, -1.0), "y+": (1, 1.0), "y-": (1, -1.0), "z+": (2, 1.0), "z-": (2, -1.0)}
 
 
 def sensor_points(prm: dict, pos: np.ndarray, kind: np.ndarray, dp: float) -> list:
@@ -39,10 +41,13 @@ def sensor_points(prm: dict, pos: np.ndarray, kind: np.ndarray, dp: float) -> li
     inside = np.all((b >= lo - 0.5 * dp) & (b <= hi + 0.5 * dp), axis=1) & (b[:, -1] > 0.5 * dp)
     rows = b[inside]
     if not len(rows):
-        raise ValueError(f"sensor_body {lo.tolist()} - {hi.tolist()}: no boundary rows at dp {dp}")
+        raise InputError(f"params.sensor_body: expected a box around boundary rows at dp {dp}, got "
+                         f"{lo.tolist()} - {hi.tolist()} (no rows)")
     out = []
-    for s in prm["sensors"]:
+    for i, s in enumerate(prm["sensors"]):
         name, x, face = str(s[0]), np.array(s[1:4], float), str(s[4])
+        if face not in FACES:
+            raise InputError(f"params.sensors[{i}]: face: expected one of {', '.join(FACES)}, got {face!r}")
         axis, sign = FACES[face]
         plane = rows[:, axis].max() if sign > 0 else rows[:, axis].min()
         x[axis] = plane + sign * off
