@@ -10,8 +10,8 @@ Each run is the validation case as `sphgraph validate spheric2` runs it (`run_ca
 time shift, and the eight pressure sensors on the box every 2 ms, sphgraph.validation.sensors).
 One JSON line per run as it finishes (metrics, particles, steps, wall seconds, compile
 included); `--json` also holds each run's series, `--plot` draws every run against the data,
-one panel a gauge or a sensor (pressures as running means over the case's smooth_peak_t). A run that fails numerically is recorded with its
-failure and the sweep goes on. `--rescore FILE... --window T` runs nothing: it scores the stored
+one panel a gauge or a sensor (pressures as running means over the case's smooth_peak_t).
+A run that fails numerically is recorded with its failure and the sweep goes on. `--rescore FILE... --window T` runs nothing: it scores the stored
 series of earlier `--json` files over 0-T s (the case's metrics, `cases.height_metrics`), so that
 a run cut short at `--t-end` compares with full runs over the same window.
 """
@@ -50,9 +50,6 @@ RUNS = {"dsph": ({}, {}),                                     # the case as ship
         "zhang-noslip4-cancel": ({"boundary": "mdbc-noslip", "layers": 4},
                                  {"riemann": "zhang2017", "riemann_eta": 0.3, "riemann_wall": "cancel",
                                   "laminar_nu": 1e-6})}
-
-
-SENSORS = {"P1", "P2", "P3", "P4", "P5", "P6", "P7", "P8"}     # the case's pressure sensors
 
 
 def plot(rows, path, case) -> None:
@@ -104,14 +101,19 @@ def plot(rows, path, case) -> None:
     fig.savefig(path, dpi=110)
 
 
-def fields(r) -> dict:
+def sensor_names(case) -> set:
+    """The names of the case's pressure sensors (`[params] sensors`)."""
+    return {str(s[0]) for s in case.params.get("sensors", [])}
+
+
+def fields(r, sensors: set) -> dict:
     """A run's row fields from its CaseResult: metrics, counts and the simulated series (heights in m,
-    the box's pressures in Pa as sampled: the case's series hold them in kPa)."""
+    the pressures of `sensors` in Pa as sampled: the case's series hold them in kPa)."""
     series = {}
     for k, v in r.series.items():
         if k.startswith("sphgraph "):
             name = k.split()[1]
-            scale = 1000.0 if name in SENSORS else 1.0
+            scale = 1000.0 if name in sensors else 1.0
             series[name] = [list(map(float, v[0])), list(map(float, scale * v[1]))]
     return dict(metrics=r.metrics, steps=r.steps, particles=r.particles, wall_s=r.wall_s, series=series)
 
@@ -135,7 +137,7 @@ def rescore(case, paths, window) -> int:
                     print(json.dumps({"file": path, "run": r["run"], "skipped": f"its series end at {last:.2f} s"}))
                     continue
                 m = height_metrics(case.params, data, r["series"], last if window is None else window)
-                if SENSORS <= set(r["series"]):     # runs stored before the box's sensors have none
+                if sensor_names(case) <= set(r["series"]):     # runs stored before the box's sensors have none
                     rho0 = float(case.scene.get("physics", {}).get("rho0", 1000.0))
                     m.update(pressure_metrics(case.params, pdata, r["series"], last if window is None else window,
                                               rho0))
@@ -162,7 +164,7 @@ def main(argv=None) -> int:
     from sphgraph.validation.cases import CaseStopped, load_case, run_case
     from sweep_rows import attempt, record
     case = load_case("spheric2")
-    gauges = case.params["gauges"]
+    gauges, sensors = case.params["gauges"], sensor_names(case)
     if a.rescore:
         return rescore(case, a.rescore, a.window)
     if a.replot:
@@ -182,9 +184,9 @@ def main(argv=None) -> int:
                 r = run_case(case, dp=a.dp, backend=a.backend, precision=a.precision, params=params,
                              overrides=overrides, plot=False)
             except CaseStopped as e:    # the heights up to the stop, metrics over that window
-                row.update(fields(e.result), t_stop=float(e.result.series[f"sphgraph {gauges[0][0]}"][0][-1]))
+                row.update(fields(e.result, sensors), t_stop=float(e.result.series[f"sphgraph {gauges[0][0]}"][0][-1]))
                 raise
-            return fields(r)
+            return fields(r, sensors)
         record(rows, attempt(row, one), a.json)
         if a.plot:
             plot(rows, a.plot, case)

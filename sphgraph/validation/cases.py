@@ -209,9 +209,8 @@ def _arrays(sim):
     return sim.frame_arrays()
 
 
-def _run_sampled(sim, samplers, end_time: float) -> None:
-    """Step `sim` to `end_time`, sampling at t = 0 and whenever a sampler (one or a list) is due."""
-    samplers = samplers if isinstance(samplers, list) else [samplers]
+def _run_sampled(sim, samplers: list, end_time: float) -> None:
+    """Step `sim` to `end_time`, sampling at t = 0 and whenever each of `samplers` is due."""
     for s in samplers:
         s.sample(sim)
     while sim.time < end_time - 1e-12:
@@ -411,7 +410,7 @@ def run_body_force(case, dp, prm, backend, precision, overrides):
             "bodies": [("body", lo, hi)]}
     sampler = ProbeSampler(scene, spec)
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
-    _run_sampled(sim, sampler, scene.end_time)
+    _run_sampled(sim, [sampler], scene.end_time)
     t, F = sampler.series("body", "force")
     comp = int(prm.get("component", 0))
     f = F[:, comp]
@@ -511,7 +510,7 @@ def run_water_heights(case, dp, prm, backend, precision, overrides):
 
 def _heights_result(case, prm, samplers, points, sim, t_end):
     """run_water_heights' (metrics, series, stats, notes) from what was sampled up to t_end."""
-    from .sensors import pressure_metrics, pressure_series
+    from .sensors import pressure_metrics, pressure_note, pressure_series
     gauges = prm["gauges"]
     floor = float(prm.get("floor", 0.0))
     data, _ = load(case.reference["dataset"])
@@ -536,11 +535,7 @@ def _heights_result(case, prm, samplers, points, sim, t_end):
         sampled = {name: samplers[1].series(name, "pressure") for name, _ in points}
         metrics.update(pressure_metrics(prm, pdata, sampled, t_end, sim.scene.physics.rho0))
         series.update(pressure_series(prm, pdata, points, sampled))
-        notes.append(f"pressure sensors: a point probe {prm.get('probe_offset_dp', 2.0)} dp off the body's outer "
-                     f"rows, sampled every {prm['dt_sample_p']} s; level = running mean over {prm.get('smooth_t', 0.1)}"
-                     f" s of both series; impact = first running mean over {prm.get('smooth_peak_t', 0.02)} s above "
-                     f"{prm.get('impact_p', 1000.0)} Pa; first peak = its largest within {prm.get('first_peak_t', 0.1)}"
-                     " s of each series' own impact (sphgraph.validation.sensors)")
+        notes.append(pressure_note(prm))
     return metrics, series, {"steps": sim.step_count, "particles": sim.n_total}, notes
 
 

@@ -29,6 +29,12 @@ import numpy as np
 from ..errors import InputError
 
 FACES = {"x+": (0, 1.0), "x-": (0, -1.0), "y+": (1, 1.0), "y-": (1, -1.0), "z+": (2, 1.0), "z-": (2, -1.0)}
+# the case parameters' defaults (module docstring), in one place for the metrics and the report's note
+DEFAULTS = {"probe_offset_dp": 2.0, "smooth_t": 0.1, "smooth_peak_t": 0.02, "impact_p": 1000.0, "first_peak_t": 0.1}
+
+
+def _param(prm: dict, key: str) -> float:
+    return float(prm.get(key, DEFAULTS[key]))
 
 
 def sensor_points(prm: dict, pos: np.ndarray, kind: np.ndarray, dp: float) -> list:
@@ -36,7 +42,7 @@ def sensor_points(prm: dict, pos: np.ndarray, kind: np.ndarray, dp: float) -> li
     boundary rows of `sensor_body` along its face's normal (rows at the body's floor, z < dp/2,
     are the tank's and left out)."""
     lo, hi = (np.asarray(v, float) for v in prm["sensor_body"])
-    off = float(prm.get("probe_offset_dp", 2.0)) * dp
+    off = _param(prm, "probe_offset_dp") * dp
     b = pos[kind != 0]
     inside = np.all((b >= lo - 0.5 * dp) & (b <= hi + 0.5 * dp), axis=1) & (b[:, -1] > 0.5 * dp)
     rows = b[inside]
@@ -65,9 +71,8 @@ def pressure_metrics(prm: dict, data: np.ndarray, pressures: dict, t_end: float,
     """The sensors' metrics (module docstring) from sampled pressures {name: (t, p [Pa])},
     sampled every `dt_sample_p` s, against the data's columns over 0-t_end."""
     dt = float(prm["dt_sample_p"])
-    thr = float(prm.get("impact_p", 1000.0))
-    w_lvl, w_peak = float(prm.get("smooth_t", 0.1)), float(prm.get("smooth_peak_t", 0.02))
-    w_first = float(prm.get("first_peak_t", 0.1))
+    thr = _param(prm, "impact_p")
+    w_lvl, w_peak, w_first = (_param(prm, k) for k in ("smooth_t", "smooth_peak_t", "first_peak_t"))
     metrics, sq = {}, []
     for s in prm["sensors"]:
         name, col = str(s[0]), int(s[5])
@@ -95,6 +100,15 @@ def pressure_metrics(prm: dict, data: np.ndarray, pressures: dict, t_end: float,
         metrics[f"first_peak_rel_err_{name}"] = peak / peak_d - 1.0
     metrics["p_rms_err_rel_rhogh0_all"] = float(np.sqrt(np.mean(sq))) / (rho0 * g * float(prm["h0"]))
     return metrics
+
+
+def pressure_note(prm: dict) -> str:
+    """The report's line on how the sensors were read and compared."""
+    return (f"pressure sensors: a point probe {_param(prm, 'probe_offset_dp')} dp off the body's outer rows, sampled "
+            f"every {prm['dt_sample_p']} s; level = running mean over {_param(prm, 'smooth_t')} s of both series; "
+            f"impact = first running mean over {_param(prm, 'smooth_peak_t')} s above {_param(prm, 'impact_p')} Pa; "
+            f"first peak = its largest within {_param(prm, 'first_peak_t')} s of each series' own impact "
+            "(sphgraph.validation.sensors)")
 
 
 def pressure_series(prm: dict, data: np.ndarray, points: list, sampled: dict) -> dict:
