@@ -572,6 +572,10 @@ def _main(argv) -> int:
         return e.exit_code
     except SphgraphError as e:
         return _internal(e)
+    except BrokenPipeError:   # the reader closed stdout (`sphgraph validate --list | head`): not our failure
+        # point stdout at devnull so that the interpreter's flush at exit does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141            # 128 + SIGPIPE, as a shell reports a pipe's writer
     except Exception as e:  # noqa: BLE001 - exit 3 with the traceback in a log, never a bare crash
         return _internal(e)
 

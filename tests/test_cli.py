@@ -294,3 +294,12 @@ def test_breakdown_of_a_device_trace(tmp_path):
     assert out[0]["steps"] == 2
     assert ms[0] == pytest.approx({"FC": 0.3, "SendEdge": 0.1}) and ms[1] == pytest.approx(ms[0])
     assert (tmp_path / "breakdown_device_x.png").stat().st_size > 1000
+
+
+def test_a_closed_pipe_is_not_an_internal_error():
+    """`sphgraph validate --list | head -1`: the reader goes away; no internal error, no traceback log."""
+    import subprocess
+    import sys
+    r = subprocess.run(f"{sys.executable} -m sphgraph validate --list | head -1", shell=True,
+                       capture_output=True, text=True, timeout=120)
+    assert r.stdout.strip() and "internal error" not in r.stderr and "Traceback" not in r.stderr, r.stderr
