@@ -69,12 +69,29 @@ def _clone(f, dtype, memo, extra=None):
 
 
 
+def _names_cuda(fn) -> bool:
+    """Whether the code of `fn` (or of a function defined in it) reads a global bound to
+    the `cuda` module."""
+    g = fn.__globals__
+
+    def walk(code):
+        return (any(g.get(n) is cuda for n in code.co_names)
+                or any(walk(c) for c in code.co_consts if isinstance(c, types.CodeType)))
+    return walk(fn.__code__)
+
+
 def device_function(f, dtype, memo=None):
-    """CUDA device copy of the @njit (or plain) function `f` for float type `dtype`."""
+    """CUDA device copy of the @njit (or plain) function `f` for float type `dtype`.
+
+    In the simulator a `cuda.jit(device=True)` function is a wrapper that swaps the fake
+    `cuda` module into the function's globals on every call, scanning all of them; a copy
+    that never reads `cuda` runs the same as its plain Python function, which is what it
+    gets there (the pair maths are called per pair, a third of the simulator's time)."""
     memo = {} if memo is None else memo
     key = (getattr(f, "py_func", f), np.dtype(dtype).str)
     if key not in memo:
-        memo[key] = cuda.jit(device=True)(_clone(f, dtype, memo))
+        fn = _clone(f, dtype, memo)
+        memo[key] = fn if SIMULATOR and not _names_cuda(fn) else cuda.jit(device=True)(fn)
     return memo[key]
 
 
