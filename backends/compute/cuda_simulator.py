@@ -64,6 +64,8 @@ def _finished(m, lane):
         elif m._live and m._blocked == m._live:    # the rest all wait: the barrier opens
             m._blocked = 0
             m._gen += 1
+        elif m._live:       # nobody's wait ends here: waking them all costs a GIL hand-off each
+            return
         m._cv.notify_all()
 
 
