@@ -54,6 +54,7 @@ DP = {"spheric2": 0.035, "yeh_petroff_wetbed": 0.02}   # the scene's own dp unle
 # re-recorded for the generic target (see the module docstring) with numba 0.68.1, numpy 2.4.6
 DIGESTS = {
     "dambreak2d": (5501, "7dfd420428784032"),
+    "dambreak_martin_moyce": (6515, "f31d75836c30dee8"),   # recorded when the file came (2026-12-08)
     "dambreak_wall2d": (32907, "80c71e49e77d7989"),   # forces_df compiled without fastmath (see below)
     "dambreak3d": (17847, "faf26bf9ea50f839"),
     "platform_wave": (9672, "1024788b45c4ebed"),
