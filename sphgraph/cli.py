@@ -145,6 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--boundary", choices=["dbc", "mdbc", "mdbc-noslip"], default=None,
                    help="wall treatment (default: the case's; mDBC on any backend and rank count)")
     p.add_argument("--out", default="out/validate", help="directory of the comparison plot PNG")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
 
     p = sub.add_parser("study", help="sweep resolution and methods of a case: error against wall time "
                                        "(CSV + log-log PNG with the Pareto front)")
@@ -448,7 +449,8 @@ def cmd_validate(args) -> int:
     try:
         res = run_case(args.case, dp=args.dp, backend=args.backend, precision=args.precision,
                        overrides=_overrides(args.set), out=args.out,
-                       params={"boundary": args.boundary} if args.boundary else None)
+                       params={"boundary": args.boundary} if args.boundary else None,
+                       progress=not args.quiet)
     except CaseStopped as e:    # what the run measured before it stopped, then the failure (exit 1)
         print(e.result.report())
         if e.result.plot_path:

@@ -44,7 +44,7 @@ class Progress:
             self.bar.refresh()
         elif now - self.last >= self.every_s:
             self.last = now
-            frac = sim_time / self.end_time if self.end_time else 1.0
+            frac = min(sim_time / self.end_time, 1.0) if self.end_time else 1.0   # the last step may pass the end
             eta = (now - self.t0) * (1 - frac) / frac if frac > 0 else float("nan")
             print(f"t = {sim_time:.4f}/{self.end_time:.4f} s  step {step}  {rate:.0f} steps/s  "
                   f"ETA {eta:.0f} s", file=self.stream, flush=True)

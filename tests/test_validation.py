@@ -115,6 +115,27 @@ def test_probe_tables_are_validated():
 
 
 # --------------------------------------------------------------------------- CLI and study
+def test_cli_validate_shows_each_simulations_progress_unless_quiet(tmp_path, capsys, monkeypatch):
+    """Lines (no terminal) towards the end each runner steps its simulation to: the poiseuille
+    case runs two simulations (H/10, H/20), and each gets its own progress from t = 0."""
+    import sphgraph.progress as P
+
+    class Every(P.Progress):            # a line at every update, not every 5 s
+        def __init__(self, end_time, **kw):
+            super().__init__(end_time, **dict(kw, every_s=0.0))
+    monkeypatch.setattr(P, "Progress", Every)
+    assert main(["validate", "poiseuille", "--out", str(tmp_path)]) == 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("t = ")]
+    steps = [int(x.split("step ")[1].split()[0]) for x in lines]
+    restarts = [i for i in range(1, len(steps)) if steps[i] < steps[i - 1]]
+    assert len(lines) > 10 and len(restarts) == 1, lines[:3]     # two simulations, each from its start
+    for last in (lines[restarts[0] - 1], lines[-1]):    # each ends at the end it was shown towards
+        t, end = (float(v) for v in last.split()[2].split("/"))
+        assert 0 < end <= t < 1.01 * end, last     # the last step may pass the end by one dt
+    assert main(["validate", "poiseuille", "--out", str(tmp_path), "--quiet"]) == 0
+    assert "t = " not in capsys.readouterr().err
+
+
 def test_cli_validate_exit_codes_and_plot(tmp_path, capsys):
     assert main(["validate", "--list"]) == 0
     assert "poiseuille" in capsys.readouterr().out

@@ -18,6 +18,7 @@ files carry their source (paper, figure, DOI) in their header.
 """
 from __future__ import annotations
 
+import contextvars
 import copy
 import math
 import time
@@ -127,20 +128,26 @@ class CaseResult:
 
 def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-cpu", precision: str | None = None,
              overrides: dict | None = None, out: str | None = None, plot: bool = True,
-             params: dict | None = None) -> CaseResult:
+             params: dict | None = None, progress: bool = False) -> CaseResult:
     """Run validation case `name` (a case name, a case file path or a `Case` built in code, e.g.
-    by :func:`sphgraph.validation.gate.with_gate`); `overrides` are physics fields."""
+    by :func:`sphgraph.validation.gate.with_gate`); `overrides` are physics fields; `progress`:
+    a bar on a terminal (a line every few seconds otherwise) for each simulation the case runs."""
     case = name if isinstance(name, Case) else load_case(name)
     dp = float(dp) if dp is not None else case.dp
     prm = dict(case.params, **(params or {}))
     t0 = time.perf_counter()
     stopped = None
+    token = _PROGRESS.set(_RunProgress() if progress else None)
     try:
         metrics, series, stats, notes = RUNNERS[case.runner](case, dp, prm, backend=backend, precision=precision,
                                                              overrides=dict(overrides or {}))
     except CaseStopped as e:
         stopped = e
         metrics, series, stats, notes = e.partial
+    finally:
+        if _PROGRESS.get() is not None:
+            _PROGRESS.get().close()
+        _PROGRESS.reset(token)
     wall = time.perf_counter() - t0
     checks = []
     for k, (lo, hi) in case.tolerances.items():
@@ -162,6 +169,41 @@ def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-
 
 
 # --------------------------------------------------------------------------- helpers
+class _RunProgress:
+    """The progress of the simulations one case runs: each new simulation gets its own bar (or
+    line), towards the time its runner steps it to; the steps/s count starts after the first
+    step (numba's compilation), as `sphgraph run`'s does."""
+
+    def __init__(self):
+        self.sim, self.bar = None, None
+
+    def update(self, sim, end_time: float) -> None:
+        from ..progress import Progress
+        if sim is not self.sim:
+            self.close()
+            self.sim, self.bar = sim, Progress(end_time)
+        if sim.step_count == 1:
+            self.bar.reset_clock(1)
+        self.bar.update(sim.time, sim.step_count)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        self.sim, self.bar = None, None
+
+
+#: run_case's progress (a _RunProgress, or None: quiet), read by _step
+_PROGRESS: contextvars.ContextVar = contextvars.ContextVar("sphgraph_validation_progress", default=None)
+
+
+def _step(sim, end_time: float) -> None:
+    """One step of `sim`, a runner's loop towards `end_time`, shown when run_case was asked to."""
+    sim.step()
+    prog = _PROGRESS.get()
+    if prog is not None:
+        prog.update(sim, end_time)
+
+
 def scene_for(case: Case, dp: float, overrides: dict, boundary=None, **top):
     """The case's scene at `dp` with physics overrides (and top-level keys, e.g. end_time);
     `boundary` (the case's wall treatment parameter) is set in the scene's physics before it is
@@ -214,7 +256,7 @@ def _run_sampled(sim, samplers: list, end_time: float) -> None:
     for s in samplers:
         s.sample(sim)
     while sim.time < end_time - 1e-12:
-        sim.step()
+        _step(sim, end_time)
         for s in samplers:
             if s.due(sim.time):
                 s.sample(sim)
@@ -237,7 +279,7 @@ def run_surge_front(case, dp, prm, backend, precision, overrides):
     Ts, Zs, Hs = [0.0], [1.0], [2.0]
     T_end = float(prm.get("T_end", T1 + 0.1))
     while sim.time * scale < T_end:
-        sim.step()
+        _step(sim, T_end / scale)
         if sim.step_count % 10 == 0:
             a_ = _arrays(sim)
             fl = a_["kind"] == 0
@@ -294,7 +336,7 @@ def run_hydrostatic(case, dp, prm, backend, precision, overrides):
     weight = sim.n_fluid * scene.constants.mass_fluid * G
     k = 0
     while sim.time < scene.end_time - 1e-12:
-        sim.step()
+        _step(sim, scene.end_time)
         k += 1
         if sim.time >= t_avg0 and k % int(prm.get("every", 20)) == 0:
             a = sim.frame_arrays()
@@ -340,7 +382,7 @@ def run_wall_pressure(case, dp, prm, backend, precision, overrides):
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"))
     rho0 = scene.physics.rho0
     while sim.time < scene.end_time - 1e-12:
-        sim.step()
+        _step(sim, scene.end_time)
         sampler.sample(sim)
     t, p = sampler.series("P1", "pressure")
     T, P = t * scale, p / (rho0 * G * H)
@@ -626,7 +668,7 @@ def poiseuille_error(case, dp, prm, backend, precision, overrides):
     sim = _sim(scene, backend, precision, boundary=prm.get("boundary", "dbc"), schedule=periodic_schedule(),
                user_tasks=periodic_tasks(L))
     while sim.time < scene.end_time - 1e-12:
-        sim.step()
+        _step(sim, scene.end_time)
     p = _fluid(sim)
     fl = p.kind == 0
     y, u = p.pos[fl, 1], p.vel[fl, 0]
