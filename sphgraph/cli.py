@@ -160,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="directory (default out/study/<case>)")
     p.add_argument("--target-error", type=float, help="name the cheapest configuration with error <= E")
     p.add_argument("--from-csv", help="skip the runs: read an earlier study CSV")
+    p.add_argument("--quiet", action="store_true", help="no progress output (each run's line still printed)")
 
     p = sub.add_parser("plot", help="figures from a run")
     psub = p.add_subparsers(dest="what", parser_class=_Parser)
@@ -495,7 +496,7 @@ def cmd_study(args) -> int:
                              f"{', '.join(sorted(PhysicsConfig.__dataclass_fields__))}")
         base[k] = _base_value(PhysicsConfig.__dataclass_fields__[k].default, v.strip())
     out = run_study(args.case, dps=_floats(args.dp, "--dp") if args.dp else None, axes=axes, out=args.out,
-                    target_error=args.target_error, from_csv=args.from_csv, base=base)
+                    target_error=args.target_error, from_csv=args.from_csv, base=base, progress=not args.quiet)
     print(out["summary"])
     return 0 if args.target_error is None or out.get("best") is not None else 1
 

@@ -64,7 +64,7 @@ def configurations(case, dps, axes, base=None) -> list[dict]:
     return out
 
 
-def run_one(case_name: str, cfg: dict, error_key: str) -> dict:
+def run_one(case_name: str, cfg: dict, error_key: str, progress: bool = False) -> dict:
     from .validation.cases import run_case
     overrides = {k: v for k, v in cfg.items() if k not in ("dp", "precision", "backend")}
     if cfg["diffusion"] == "none":
@@ -73,7 +73,7 @@ def run_one(case_name: str, cfg: dict, error_key: str) -> dict:
     t0 = time.perf_counter()
     try:
         res = run_case(case_name, dp=cfg["dp"], backend=cfg["backend"], precision=cfg["precision"],
-                       overrides=overrides, plot=False)
+                       overrides=overrides, plot=False, progress=progress)
         row.update(error=float(res.metrics[error_key]), wall_s=res.wall_s, steps=res.steps,
                    particles=res.particles)
     except NumericalError as e:
@@ -108,9 +108,10 @@ def read_csv(path) -> list[dict]:
 
 
 def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, from_csv=None,
-              log=print, configs=None, base=None) -> dict:
+              log=print, configs=None, base=None, progress: bool = False) -> dict:
     """Run (or read, `from_csv`) the sweep; `configs` replaces the one-at-a-time list; `base`:
-    physics fields of the baseline the variants depart from."""
+    physics fields of the baseline the variants depart from; `progress`: each run's progress
+    (run_case's), and each run's line numbered k/N."""
     from .plots import pareto_front, plot_study
     from .validation.cases import load_case
     case = load_case(case_name)
@@ -125,9 +126,10 @@ def run_study(case_name: str, dps=None, axes=None, out=None, target_error=None, 
         if axes is None or not axes:
             axes = {k: v for k, v in DEFAULT_AXES.items() if k in st.get("axes", AXES)}
         rows = []
-        for cfg in configs or configurations(case, dps, axes, base):
-            r = run_one(case.name, cfg, error_key)
-            log(describe(r) + ("" if r["status"] == "ok" else f" [{r['status']}]"))
+        todo = list(configs or configurations(case, dps, axes, base))
+        for k, cfg in enumerate(todo, 1):
+            r = run_one(case.name, cfg, error_key, progress=progress)
+            log(f"[{k}/{len(todo)}] " + describe(r) + ("" if r["status"] == "ok" else f" [{r['status']}]"))
             rows.append(r)
         if rows and all(r["status"].startswith("refused") for r in rows):
             raise InputError(f"study {case.name}: every configuration was refused; the first: "

@@ -164,6 +164,7 @@ def test_study_csv_png_pareto_and_target(tmp_path, capsys):
     assert err["symplectic"] < 0.12 < err["verlet"] or not math.isfinite(err["verlet"])
     assert any(r["pareto"] == "1" for r in rows)
     assert "cheapest: dp=5e-05 symplectic" in out
+    assert "[1/2] dp=5e-05" in out and "[2/2] dp=5e-05" in out      # each run's line, numbered
     assert (tmp_path / "study.png").stat().st_size > 1000
     assert main(["study", "poiseuille", "--from-csv", str(tmp_path / "study.csv"), "--out", str(tmp_path),
                  "--target-error", "1e-9"]) == 1
