@@ -11,13 +11,15 @@ time shift, and the eight pressure sensors on the box every 2 ms, sphgraph.valid
 One JSON line per run as it finishes (metrics, particles, steps, wall seconds, compile
 included); `--json` also holds each run's series, `--plot` draws every run against the data,
 one panel a gauge or a sensor (pressures as running means over the case's smooth_peak_t).
-A run that fails numerically is recorded with its failure and the sweep goes on. `--rescore FILE... --window T` runs nothing: it scores the stored
-series of earlier `--json` files over 0-T s (the case's metrics, `cases.height_metrics`), so that
-a run cut short at `--t-end` compares with full runs over the same window.
+A run that fails numerically is recorded with its failure and the sweep goes on.
+`--rescore FILE... --window T` runs nothing: it scores the stored series of earlier `--json`
+files over 0-T s (the case's metrics, `cases.height_metrics`), so that a run cut short at
+`--t-end` compares with full runs over the same window; `--replot FILE... --plot PNG` draws them.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
 # run: (params over the case's, physics overrides)
@@ -121,7 +123,6 @@ def fields(r, sensors: set) -> dict:
 def rescore(case, paths, window) -> int:
     """One JSON line a stored run that has its series: the case's metrics over 0-window s (a run
     that stopped or was cut short at t_end is compared with the others over its own length)."""
-    import json
     from sphgraph.validation import load
     from sphgraph.validation.cases import height_metrics
     from sphgraph.validation.sensors import pressure_metrics
@@ -161,6 +162,8 @@ def main(argv=None) -> int:
     ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
                     help="no run: draw the stored runs of these --json files into --plot")
     a = ap.parse_args(argv)
+    if a.replot and not a.plot:
+        ap.error("--replot: expected --plot PNG, the figure to draw, got none")
     from sphgraph.validation.cases import CaseStopped, load_case, run_case
     from sweep_rows import attempt, record
     case = load_case("spheric2")
@@ -168,7 +171,6 @@ def main(argv=None) -> int:
     if a.rescore:
         return rescore(case, a.rescore, a.window)
     if a.replot:
-        import json
         rows = [r for path in a.replot for r in json.load(open(path))]
         plot(rows, a.plot, case)
         return 0

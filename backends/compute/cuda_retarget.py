@@ -71,13 +71,9 @@ def _clone(f, dtype, memo, extra=None):
 
 def _names_cuda(fn) -> bool:
     """Whether the code of `fn` (or of a function defined in it) reads a global bound to
-    the `cuda` module."""
-    g = fn.__globals__
-
-    def walk(code):
-        return (any(g.get(n) is cuda for n in code.co_names)
-                or any(walk(c) for c in code.co_consts if isinstance(c, types.CodeType)))
-    return walk(fn.__code__)
+    the `cuda` module (only asked in the simulator)."""
+    from .cuda_simulator import names_in
+    return any(fn.__globals__.get(n) is cuda for n in names_in(fn.__code__))
 
 
 def device_function(f, dtype, memo=None):

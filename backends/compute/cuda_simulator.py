@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import types
 
 import numpy as np
 
@@ -145,28 +146,31 @@ _SHARED_CALLS = frozenset({
 _INDEPENDENT: dict = {}
 
 
+def names_in(code):
+    """Every global or attribute name the code object reads, its nested functions' included."""
+    yield from code.co_names
+    for c in code.co_consts:
+        if isinstance(c, types.CodeType):
+            yield from names_in(c)
+
+
 def _independent(f) -> bool:
     """Whether the kernel function `f` and every function it calls (plain copies, or the
     simulator's device wrappers) name none of _SHARED_CALLS: its threads never meet."""
     key = f.__code__
     if key not in _INDEPENDENT:
         _INDEPENDENT[key] = True        # a recursive call of itself names nothing new
-        _INDEPENDENT[key] = not _meets(f.__code__, f.__globals__)
+        _INDEPENDENT[key] = not _meets(f)
     return _INDEPENDENT[key]
 
 
-def _meets(code, g) -> bool:
-    import types
-    if _SHARED_CALLS.intersection(code.co_names):
+def _meets(f) -> bool:
+    names = set(names_in(f.__code__))
+    if _SHARED_CALLS & names:
         return True
-    for c in code.co_consts:
-        if isinstance(c, types.CodeType) and _meets(c, g):
-            return True
-    for n in code.co_names:
-        v = getattr(g.get(n), "fn", g.get(n))       # a device wrapper's function
-        if isinstance(v, types.FunctionType) and not _independent(v):
-            return True
-    return False
+    g = f.__globals__
+    callees = (getattr(g.get(n), "fn", g.get(n)) for n in names)     # a device wrapper's function
+    return any(isinstance(v, types.FunctionType) and not _independent(v) for v in callees)
 
 
 def _make_run(K):

@@ -145,8 +145,9 @@ def run_case(name: "str | Case", dp: float | None = None, backend: str = "numba-
         stopped = e
         metrics, series, stats, notes = e.partial
     finally:
-        if _PROGRESS.get() is not None:
-            _PROGRESS.get().close()
+        prog = _PROGRESS.get()
+        if prog is not None:
+            prog.close()
         _PROGRESS.reset(token)
     wall = time.perf_counter() - t0
     checks = []
